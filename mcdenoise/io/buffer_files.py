@@ -1,0 +1,268 @@
+"""Reading and writing :class:`~mcdenoise.io.buffers.FeatureBuffers` as EXR files.
+
+:func:`load_buffers` reads any supported renderer's file through a profile
+(:mod:`mcdenoise.io.profiles`); :func:`save_buffers` writes the ``mcdenoise`` canonical layout.
+
+Window policy (HARD_CASES 6): buffers hold exactly the pixels of the *data window* (no padding
+to, or cropping by, the display window). Both windows are kept on the FeatureBuffers
+(``data_window``, ``display_window``) and written back unchanged by :func:`save_buffers`, so
+offsets and negative origins survive a read -> write -> read round trip. A file whose buffers
+would come from parts with different data windows is refused (never broadcast or padded).
+
+Multi-part files: with ``part=None`` channels are looked up by name in every part (a name
+present in two parts must be disambiguated with ``part=``); ``part="name"`` or an index
+restricts the search to that part.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from mcdenoise.errors import ExrError, InputError
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.io.exr import ExrPart, WriteReport, probe_exr, read_exr, select_part, write_exr
+from mcdenoise.io.profiles import (
+    LAYOUT_ATTR,
+    LAYOUT_VERSION,
+    SPP_ATTR,
+    ChannelMap,
+    Profile,
+    assemble,
+    canonical_channels,
+    resolve_channels,
+)
+
+MappingArg = str | os.PathLike[str] | Mapping[str, Any] | None
+
+
+@dataclass
+class LoadResult:
+    """Everything :func:`read_buffers` learned about a file.
+
+    Attributes:
+        buffers: the loaded buffers.
+        channel_map: the profile resolution (sources, unmapped channels, notes, problems).
+        parts: headers of every part of the file.
+        used_parts: indices of the parts pixels were read from.
+        notes: why some buffers were not produced (also in ``buffers.attributes["_notes"]``).
+    """
+
+    buffers: FeatureBuffers
+    channel_map: ChannelMap
+    parts: list[ExrPart]
+    used_parts: list[int]
+    notes: list[str] = field(default_factory=list)
+
+
+def _window_text(p: ExrPart) -> str:
+    label = repr(p.name) if p.name else f"#{p.index}"
+    x0, y0, x1, y1 = p.data_window
+    return f"part {label} {p.width}x{p.height} at ({x0},{y0})-({x1},{y1})"
+
+
+def read_buffers(
+    path: str | os.PathLike[str],
+    *,
+    profile: str | Profile = "auto",
+    mapping: MappingArg = None,
+    part: str | int | None = None,
+    spp: int | None = None,
+    max_pixels: int | None = None,
+    strict: bool = True,
+) -> LoadResult:
+    """Like :func:`load_buffers`, but return the resolution details too.
+
+    ``strict=False`` records a missing ``color`` or an incomplete feature in
+    ``channel_map.problems`` instead of raising (used by :func:`mcdenoise.io.describe`).
+    """
+    src = str(path)
+    parts = probe_exr(path)
+    searched = [select_part(parts, part, src)] if part is not None else parts
+    owner: dict[str, int] = {}
+    duplicated: dict[str, list[int]] = {}
+    for p in searched:
+        for c in p.channel_names:
+            if c in owner:
+                duplicated.setdefault(c, [owner[c]]).append(p.index)
+            else:
+                owner[c] = p.index
+    attributes: dict[str, Any] = {}
+    for p in reversed(searched):  # the first part wins on conflicting attributes
+        attributes.update(p.attributes)
+    names = list(owner)
+
+    cmap = resolve_channels(
+        names, attributes, profile=profile, mapping=mapping, spp=spp, strict=strict, source=src
+    )
+    needed = cmap.file_channels()
+    ambiguous = [c for c in needed if c in duplicated]
+    if ambiguous:
+        c = ambiguous[0]
+        where = ", ".join(repr(parts[i].name or f"#{i}") for i in duplicated[c])
+        raise ExrError(f"{src}: channel {c!r} exists in parts {where}; choose one with part=")
+    by_part: dict[int, list[str]] = {}
+    for c in needed:
+        by_part.setdefault(owner[c], []).append(c)
+    used = sorted(by_part)
+    windows = {parts[i].data_window for i in used}
+    if len(windows) > 1:
+        raise ExrError(
+            f"{src}: buffers would come from parts of different data windows "
+            f"({'; '.join(_window_text(parts[i]) for i in used)}); they are never "
+            "broadcast or padded: choose one part with part="
+        )
+
+    pixels: dict[str, np.ndarray] = {}
+    for i in used:
+        pixels.update(read_exr(path, part=i, channels=by_part[i], max_pixels=max_pixels).pixels)
+    built = assemble(cmap, pixels)
+    notes = cmap.notes + built.notes
+
+    ref = parts[used[0]] if used else searched[0]
+    scalar_attrs = {k: v for k, v in attributes.items() if isinstance(v, (str, int, float))}
+    scalar_attrs["_file_channels"] = names
+    if notes:
+        scalar_attrs["_notes"] = list(notes)
+    fb = FeatureBuffers(
+        buffers={b: torch.from_numpy(a) for b, a in built.arrays.items()},
+        spp=cmap.spp,
+        source=src,
+        profile=cmap.profile,
+        channels={b: list(s.channels + s.m2) for b, s in built.sources.items()},
+        attributes=scalar_attrs,
+        data_window=ref.data_window,
+        display_window=ref.display_window,
+    )
+    return LoadResult(fb, cmap, parts, used, notes)
+
+
+def load_buffers(
+    path: str | os.PathLike[str],
+    *,
+    profile: str | Profile = "auto",
+    mapping: MappingArg = None,
+    part: str | int | None = None,
+    spp: int | None = None,
+    max_pixels: int | None = None,
+) -> FeatureBuffers:
+    """Read an EXR file into :class:`FeatureBuffers` (float32 ``(C, H, W)`` tensors).
+
+    Args:
+        path: the EXR file.
+        profile: ``"auto"`` (detect), or ``"mcdenoise"``, ``"mitsuba"``, ``"cycles"``,
+            ``"cycles:<Layer>"``, ``"pbrt"``, ``"tungsten"``.
+        mapping: a TOML/JSON mapping file or dict (buffer -> channel names, ``spp``,
+            ``variance``) overriding the profile for the buffers it names.
+        part: restrict to one part (name or index); default: search every part by name.
+        spp: samples per pixel of the colour, if the file does not record it (needed to turn
+            moments or per-sample variances into variances of the mean).
+        max_pixels: refuse larger data windows (default ``$MCDENOISE_MAX_PIXELS`` or 200 MP).
+
+    Returns:
+        FeatureBuffers over the data window with ``source``, ``profile``, ``channels``,
+        ``spp``, ``attributes`` (header scalars, plus ``_file_channels`` = every channel
+        name of the file and, when some buffer could not be produced, ``_notes``) and both
+        windows. Colour is linear HDR RGB as stored; values are not sanitised.
+
+    Raises:
+        ExrError: unreadable, corrupt, truncated or too large files; parts of different sizes.
+        MissingFeatureError: no colour; IncompleteFeatureError: a partially present feature.
+        ProfileError, InputError: bad profile, mapping, or conflicting ``spp``.
+    """
+    return read_buffers(
+        path,
+        profile=profile,
+        mapping=mapping,
+        part=part,
+        spp=spp,
+        max_pixels=max_pixels,
+        strict=True,
+    ).buffers
+
+
+def save_buffers(
+    path: str | os.PathLike[str],
+    buffers: FeatureBuffers,
+    *,
+    half: bool | Iterable[str] = False,
+    compression: str = "zip",
+    attributes: Mapping[str, str | int | float] | None = None,
+) -> WriteReport:
+    """Write ``buffers`` atomically in the ``mcdenoise`` canonical layout.
+
+    Args:
+        path: destination EXR (replaced atomically).
+        buffers: what to write; tensors ``(C, H, W)`` on any device (copied to CPU float32).
+        half: store every buffer (``True``) or the named buffers as half floats; finite
+            values beyond +/-65504 are clamped and counted in the report.
+        compression: EXR compression (see :data:`mcdenoise.io.exr.COMPRESSIONS`).
+        attributes: extra header attributes (e.g. ``mcdenoise:method``); ``mcdenoise:*``
+            attributes already on ``buffers`` are kept, these override them.
+
+    Returns:
+        The :class:`~mcdenoise.io.exr.WriteReport`.
+
+    The header gets ``mcdenoise:layout`` and, when known, ``mcdenoise:spp``. The data and
+    display windows of ``buffers`` are written as they are (their size must match).
+    """
+    names = buffers.names()
+    if not names:
+        raise InputError(f"{path}: no buffers to save")
+    if isinstance(half, bool):
+        half_set = set(names) if half else set()
+    else:
+        if isinstance(half, str):
+            raise InputError(f"half must be a bool or a list of buffer names, got {half!r}")
+        half_set = set(half)
+        unknown = sorted(half_set - set(names))
+        if unknown:
+            raise InputError(f"half names buffer(s) not present: {', '.join(unknown)}")
+
+    h, w = buffers.shape
+    channels: dict[str, np.ndarray] = {}
+    types: dict[str, str] = {}
+    for name in names:
+        t = buffers[name].detach().to("cpu", torch.float32)
+        arr = t.numpy()
+        for k, ch in enumerate(canonical_channels(name, arr.shape[0])):
+            channels[ch] = arr[k]
+            types[ch] = "half" if name in half_set else "float"
+
+    attrs: dict[str, str | int | float] = {
+        k: v
+        for k, v in buffers.attributes.items()
+        if k.startswith("mcdenoise:") and isinstance(v, (str, int, float))
+    }
+    attrs.pop(SPP_ATTR, None)
+    attrs.update(attributes or {})
+    if LAYOUT_ATTR in (attributes or {}) and str(attrs[LAYOUT_ATTR]) != LAYOUT_VERSION:
+        raise InputError(f"{LAYOUT_ATTR} is set by save_buffers; got {attrs[LAYOUT_ATTR]!r}")
+    attrs[LAYOUT_ATTR] = LAYOUT_VERSION
+    if buffers.spp is not None:
+        given = (attributes or {}).get(SPP_ATTR)
+        if given is not None and given != buffers.spp:
+            raise InputError(f"{SPP_ATTR}={given!r} contradicts buffers.spp={buffers.spp}")
+        attrs[SPP_ATTR] = int(buffers.spp)
+
+    dw = buffers.data_window or (0, 0, w - 1, h - 1)
+    if (dw[2] - dw[0] + 1, dw[3] - dw[1] + 1) != (w, h):
+        raise InputError(
+            f"{path}: buffers.data_window {tuple(dw)} is {dw[2] - dw[0] + 1}x{dw[3] - dw[1] + 1} "
+            f"but the buffers are {w}x{h}; update data_window (or set it to None)"
+        )
+    vw = buffers.display_window or dw
+    return write_exr(
+        path,
+        channels,
+        pixel_type=types,
+        compression=compression,
+        attributes=attrs,
+        data_window=dw,
+        display_window=vw,
+    )

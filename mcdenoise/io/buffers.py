@@ -1,0 +1,299 @@
+"""`FeatureBuffers`: the in-memory form of one rendered image and its auxiliary buffers.
+
+Every buffer is a float32 ``torch.Tensor`` of layout ``(C, H, W)`` on the CPU (move it with
+:meth:`FeatureBuffers.to`). Buffers are addressed by *feature name*, never by channel position;
+the names and channel counts are fixed here and nowhere else:
+
+=============  ==  ====================================================================
+name           C   meaning
+=============  ==  ====================================================================
+color          3   noisy radiance, linear HDR RGB, the mean of ``spp`` samples
+albedo         3   first-hit reflectance ("texture"), linear RGB, usually in [0, 1]
+normal         3   first-hit shading normal, world space, components in [-1, 1]
+depth          1   distance from the camera to the first hit (scene units; Mitsuba's ``T``)
+position       3   first-hit world position (scene units)
+diffuse        3   diffuse part of ``color`` (optional extra)
+specular       3   specular part of ``color`` (optional extra)
+visibility     1   direct-light visibility in [0, 1] (optional extra)
+motion         2   screen-space motion to the previous frame, pixels (x right, y down)
+=============  ==  ====================================================================
+
+For every name ``f`` above, ``f + "_var"`` holds the per-pixel **variance of the mean** of that
+buffer (same channel count, or 1 channel for a luminance variance), i.e. the sample variance
+divided by the sample count. A renderer that writes the per-sample variance (pbrt-v4's
+``Variance``) is converted on load by the profile, which divides by ``spp``.
+
+Missing buffers are simply absent: code that needs one calls :meth:`FeatureBuffers.require`,
+which raises :class:`MissingFeatureError` naming what is missing and what the file has.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from mcdenoise.errors import InputError, McdenoiseError
+
+#: Feature name -> channel count. The order is the canonical order used when writing.
+FEATURES: dict[str, int] = {
+    "color": 3,
+    "albedo": 3,
+    "normal": 3,
+    "depth": 1,
+    "position": 3,
+    "diffuse": 3,
+    "specular": 3,
+    "visibility": 1,
+    "motion": 2,
+}
+#: Suffix of variance buffers: ``color_var`` is the variance of the mean of ``color``.
+VAR_SUFFIX = "_var"
+
+#: Every buffer name a FeatureBuffers may hold.
+BUFFER_NAMES: tuple[str, ...] = tuple(FEATURES) + tuple(f + VAR_SUFFIX for f in FEATURES)
+
+
+class MissingFeatureError(McdenoiseError, ValueError):
+    """A method needs buffers the input does not have.
+
+    The message names the missing buffers and lists the buffers (and, when known, the raw
+    file channels) that *are* present, so the user can fix the profile or mapping.
+    """
+
+    def __init__(
+        self,
+        missing: Iterable[str],
+        present: Iterable[str],
+        *,
+        source: str | None = None,
+        channels: Iterable[str] | None = None,
+        needed_by: str | None = None,
+    ) -> None:
+        self.missing = list(missing)
+        self.present = list(present)
+        self.source = source
+        self.channels = list(channels) if channels is not None else None
+        who = f"{needed_by} needs" if needed_by else "missing"
+        where = f"{source}: " if source else ""
+        msg = f"{where}{who} {', '.join(self.missing)}; the input has {', '.join(self.present) or 'nothing'}"
+        if self.channels is not None:
+            shown = self.channels[:40]
+            more = f", ... ({len(self.channels) - 40} more)" if len(self.channels) > 40 else ""
+            msg += f" (file channels: {', '.join(shown)}{more})"
+        super().__init__(msg)
+
+
+def expected_channels(name: str) -> int:
+    """Channel count of buffer ``name`` (variance buffers may also have 1 channel)."""
+    base = name[: -len(VAR_SUFFIX)] if name.endswith(VAR_SUFFIX) else name
+    if base not in FEATURES:
+        raise KeyError(f"unknown buffer name {name!r}; known: {', '.join(BUFFER_NAMES)}")
+    return FEATURES[base]
+
+
+@dataclass
+class FeatureBuffers:
+    """Named float32 buffers ``(C, H, W)`` of one image, plus where they came from.
+
+    Attributes:
+        buffers: name -> tensor ``(C, H, W)``, float32 (see the module docstring for names).
+        spp: samples per pixel of ``color`` when known.
+        source: path of the file the buffers were read from, if any.
+        profile: name of the renderer profile that mapped the file's channels.
+        channels: for each buffer, the file channel names it was read from (same order).
+        attributes: header attributes of the source file (string/number values only).
+        data_window: ``(xmin, ymin, xmax, ymax)`` inclusive, of the pixels held.
+        display_window: ``(xmin, ymin, xmax, ymax)`` inclusive, of the source file.
+    """
+
+    buffers: dict[str, torch.Tensor] = field(default_factory=dict)
+    spp: int | None = None
+    source: str | None = None
+    profile: str | None = None
+    channels: dict[str, list[str]] = field(default_factory=dict)
+    attributes: dict[str, Any] = field(default_factory=dict)
+    data_window: tuple[int, int, int, int] | None = None
+    display_window: tuple[int, int, int, int] | None = None
+
+    def __post_init__(self) -> None:
+        items = dict(self.buffers)
+        self.buffers = {}
+        for name, value in items.items():
+            self[name] = value
+
+    # --- mapping-like access -------------------------------------------------------------
+    def __setitem__(self, name: str, value: torch.Tensor | np.ndarray) -> None:
+        want = expected_channels(name)
+        t = torch.as_tensor(value)
+        if t.ndim == 2:
+            t = t.unsqueeze(0)
+        if t.ndim != 3:
+            raise InputError(f"buffer {name!r} must be (C, H, W), got shape {tuple(t.shape)}")
+        ok = t.shape[0] == want or (name.endswith(VAR_SUFFIX) and t.shape[0] == 1)
+        if not ok:
+            raise InputError(
+                f"buffer {name!r} must have {want} channel(s), got {t.shape[0]} "
+                f"(shape {tuple(t.shape)})"
+            )
+        if self.buffers:
+            h, w = self.shape
+            if t.shape[1:] != (h, w):
+                raise InputError(
+                    f"buffer {name!r} is {t.shape[2]}x{t.shape[1]} but the image is {w}x{h}: "
+                    "all buffers of an image must have the same resolution"
+                )
+        if t.dtype != torch.float32:
+            t = t.to(torch.float32)
+        self.buffers[name] = t
+
+    def __getitem__(self, name: str) -> torch.Tensor:
+        try:
+            return self.buffers[name]
+        except KeyError:
+            raise self._missing([name]) from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.buffers
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.buffers)
+
+    def __len__(self) -> int:
+        return len(self.buffers)
+
+    def get(self, name: str, default: torch.Tensor | None = None) -> torch.Tensor | None:
+        return self.buffers.get(name, default)
+
+    def names(self) -> list[str]:
+        """Buffer names present, in canonical order."""
+        return [n for n in BUFFER_NAMES if n in self.buffers]
+
+    # --- convenience ---------------------------------------------------------------------
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(H, W)`` of the image."""
+        if not self.buffers:
+            raise ValueError("FeatureBuffers is empty")
+        first = next(iter(self.buffers.values()))
+        return int(first.shape[1]), int(first.shape[2])
+
+    @property
+    def height(self) -> int:
+        return self.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.shape[1]
+
+    @property
+    def color(self) -> torch.Tensor:
+        return self["color"]
+
+    def require(self, names: Iterable[str], *, needed_by: str | None = None) -> None:
+        """Raise :class:`MissingFeatureError` unless every buffer in ``names`` is present."""
+        missing = [n for n in names if n not in self.buffers]
+        if missing:
+            raise self._missing(missing, needed_by=needed_by)
+
+    def _missing(self, missing: list[str], needed_by: str | None = None) -> MissingFeatureError:
+        raw = sorted({c for cs in self.channels.values() for c in cs}) or None
+        if self.attributes.get("_file_channels"):
+            raw = list(self.attributes["_file_channels"])
+        return MissingFeatureError(
+            missing, self.names(), source=self.source, channels=raw, needed_by=needed_by
+        )
+
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> FeatureBuffers:
+        """A copy with every buffer moved to ``device`` / cast to ``dtype`` (metadata shared)."""
+        out = FeatureBuffers(
+            spp=self.spp,
+            source=self.source,
+            profile=self.profile,
+            channels=dict(self.channels),
+            attributes=dict(self.attributes),
+            data_window=self.data_window,
+            display_window=self.display_window,
+        )
+        out.buffers = {k: v.to(device=device, dtype=dtype) for k, v in self.buffers.items()}
+        return out
+
+    def subset(self, names: Iterable[str]) -> FeatureBuffers:
+        """A view holding only ``names`` (those present); metadata is kept."""
+        keep = set(names)
+        out = self.to()
+        out.buffers = {k: v for k, v in self.buffers.items() if k in keep}
+        return out
+
+    def crop(self, y0: int, x0: int, h: int, w: int) -> FeatureBuffers:
+        """The window ``[y0:y0+h, x0:x0+w]`` of every buffer (views, no copy).
+
+        ``data_window`` moves with the crop (the display window is kept), so saving the
+        crop writes it at its place in the image.
+        """
+        out = self.to()
+        out.buffers = {k: v[:, y0 : y0 + h, x0 : x0 + w] for k, v in self.buffers.items()}
+        if self.data_window is not None and out.buffers:
+            ch, cw = out.shape
+            dx, dy = self.data_window[0] + max(x0, 0), self.data_window[1] + max(y0, 0)
+            out.data_window = (dx, dy, dx + cw - 1, dy + ch - 1)
+        return out
+
+    def nonfinite_counts(self) -> dict[str, dict[str, int]]:
+        """Per buffer: counts of NaN, +/-Inf and negative values (for reports and ``info``)."""
+        out: dict[str, dict[str, int]] = {}
+        for name in self.names():
+            t = self.buffers[name]
+            out[name] = {
+                "nan": int(torch.isnan(t).sum()),
+                "inf": int(torch.isinf(t).sum()),
+                "negative": int((t < 0).sum()),
+            }
+        return out
+
+
+def sanitize(
+    buffers: FeatureBuffers, *, clamp_negative: Mapping[str, bool] | None = None
+) -> tuple[FeatureBuffers, dict[str, int]]:
+    """Replace NaN/Inf so filters never see them; return the repaired copy and repair counts.
+
+    Policy (documented in the README): NaN -> 0; +Inf -> the largest finite value of that
+    buffer (0 if none); -Inf -> 0 for ``color``-like and variance buffers, the smallest finite
+    value otherwise. Colour, albedo, diffuse/specular and every variance are clamped at 0
+    (a negative variance or radiance is not physical); normals, positions and motion keep
+    their sign. ``clamp_negative`` overrides the clamp per buffer name.
+    """
+    nonneg = {"color", "albedo", "diffuse", "specular", "visibility", "depth"}
+    out = buffers.to()
+    repaired: dict[str, int] = {}
+    for name in buffers.names():
+        t = buffers.buffers[name]
+        base = name[: -len(VAR_SUFFIX)] if name.endswith(VAR_SUFFIX) else name
+        clamp = name.endswith(VAR_SUFFIX) or base in nonneg
+        if clamp_negative is not None and name in clamp_negative:
+            clamp = clamp_negative[name]
+        bad = ~torch.isfinite(t)
+        n_bad = int(bad.sum())
+        n_neg = int((t < 0).sum()) if clamp else 0
+        if n_bad == 0 and n_neg == 0:
+            continue
+        fixed = t.clone()
+        if n_bad:
+            finite = t[~bad]
+            hi = float(finite.max()) if finite.numel() else 0.0
+            lo = float(finite.min()) if finite.numel() else 0.0
+            fixed = torch.where(torch.isnan(fixed), torch.zeros_like(fixed), fixed)
+            fixed = torch.where(fixed == float("inf"), torch.full_like(fixed, hi), fixed)
+            fixed = torch.where(
+                fixed == float("-inf"), torch.full_like(fixed, 0.0 if clamp else lo), fixed
+            )
+        if clamp:
+            fixed = fixed.clamp_min(0.0)
+        out.buffers[name] = fixed
+        repaired[name] = n_bad + n_neg
+    return out, repaired

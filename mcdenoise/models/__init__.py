@@ -1,0 +1,1 @@
+"""mcdenoise.models (see README)."""

@@ -1,0 +1,1 @@
+"""mcdenoise.render (see README)."""

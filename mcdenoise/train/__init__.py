@@ -1,0 +1,1 @@
+"""mcdenoise.train (see README)."""

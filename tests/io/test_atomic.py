@@ -1,0 +1,60 @@
+"""Atomic writes (HARD_CASES 12): old or new file, never a partial one, no stray temporaries."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from mcdenoise.io.atomic import TMP_PREFIX, atomic_path, write_text_atomic
+
+
+def test_failed_write_keeps_old_file_and_leaves_no_temp(tmp_path):
+    target = tmp_path / "a.json"
+    target.write_text("old")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("boom")
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+
+
+def test_keyboard_interrupt_leaves_no_temp(tmp_path):
+    target = tmp_path / "a.txt"
+    with pytest.raises(KeyboardInterrupt), atomic_path(target) as tmp:
+        tmp.write_text("x")
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_temp_name_carries_pid_and_suffix(tmp_path):
+    import os
+
+    with atomic_path(tmp_path / "img.exr") as tmp:
+        assert tmp.name.startswith(f"{TMP_PREFIX}{os.getpid()}-")
+        assert tmp.suffix == ".exr"
+        tmp.write_bytes(b"1")
+
+
+def test_temporaries_of_dead_writers_are_swept_live_ones_kept(tmp_path):
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    dead_pid = int(dead.stdout)
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        stale = tmp_path / f"{TMP_PREFIX}{dead_pid}-abc.exr"
+        busy = tmp_path / f"{TMP_PREFIX}{live.pid}-def.exr"
+        stale.write_bytes(b"partial")
+        busy.write_bytes(b"in progress")
+        write_text_atomic(tmp_path / "out.txt", "done")
+        assert not stale.exists()
+        assert busy.exists()
+        assert (tmp_path / "out.txt").read_text() == "done"
+    finally:
+        live.kill()
+        live.wait()
