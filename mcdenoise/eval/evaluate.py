@@ -1,0 +1,552 @@
+"""Evaluate denoised EXR outputs (and the noisy inputs they came from) against references.
+
+Two entry points share one engine:
+
+* :func:`evaluate` works on files: ``reference`` is one EXR (every output is compared with it)
+  or a folder of EXRs (each output is matched with the reference whose stem is the longest
+  prefix of the output's stem, see :func:`match_prefix`); ``outputs`` are EXR files or folders
+  (scanned non-recursively for ``*.exr``, skipping ``.mcdenoise-tmp-*`` files).
+* :func:`evaluate_arrays` works on ``(3, H, W)`` arrays already in memory.
+
+For every output the noisy input it was made from is found from its ``mcdenoise:source``
+header attribute when that file exists, else among ``inputs`` (the input whose stem is the
+longest prefix of the output's stem); the noisy input is evaluated too, as a row of method
+``"noisy"``, so every report shows what a method bought (``relmse_ratio``). A file given as an
+output that has no ``mcdenoise:method`` attribute and is the noisy input of another output is
+treated as that noisy input. Colour is the ``color`` buffer of :func:`mcdenoise.io.load_buffers`:
+linear HDR RGB.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcdenoise import __version__
+from mcdenoise.errors import InputError
+from mcdenoise.eval.metrics import ArrayLike, as_image, check_same_shape, compute_metrics
+from mcdenoise.eval.metrics import resolve_metrics as _resolve_metrics
+from mcdenoise.eval.preview import choose_crop, crop, overview
+from mcdenoise.eval.results import ROLE_NOISY, ROLE_OUTPUT, EvalRecord, EvalResult, ScenePreview
+from mcdenoise.eval.tonemap import auto_exposure
+from mcdenoise.io.atomic import TMP_PREFIX
+
+PathLike = str | os.PathLike[str]
+
+#: Header attributes written by ``mcdenoise denoise`` (read here when present).
+ATTR_METHOD = "mcdenoise:method"
+ATTR_PARAMS = "mcdenoise:params"
+ATTR_SOURCE = "mcdenoise:source"
+ATTR_SECONDS = "mcdenoise:seconds"
+ATTR_DEVICE = "mcdenoise:device"
+ATTR_SPP = "mcdenoise:spp"
+
+_SPP_IN_NAME = re.compile(r"(?:^|[_\-.])spp(\d+)(?:$|[_\-.])", re.IGNORECASE)
+
+
+# --- file discovery and matching ----------------------------------------------------------
+
+
+def scan_exr(path: PathLike, *, what: str = "file") -> list[Path]:
+    """``[path]`` for a file, or the ``*.exr`` files of a folder (sorted, not recursive).
+
+    Names starting with ``.mcdenoise-tmp-`` (unfinished atomic writes) are skipped.
+
+    Raises:
+        InputError: ``path`` does not exist, or the folder holds no EXR file.
+    """
+    p = Path(path)
+    if p.is_dir():
+        found = sorted(
+            f
+            for f in p.iterdir()
+            if f.is_file() and f.suffix.lower() == ".exr" and not f.name.startswith(TMP_PREFIX)
+        )
+        if not found:
+            raise InputError(f"no *.exr {what} in folder {p}")
+        return found
+    if not p.exists():
+        raise InputError(f"{what} not found: {p}")
+    return [p]
+
+
+def match_prefix(stem: str, candidates: Sequence[str]) -> str | None:
+    """The longest candidate that is a prefix of ``stem`` at a word boundary, else ``None``.
+
+    A candidate matches when ``stem`` equals it or continues it with a non-alphanumeric
+    character (``_``, ``-``, ``.``), so reference ``cornell`` matches output
+    ``cornell_spp16_nlm`` but reference ``box`` does not match output ``boxes_nlm``.
+
+    >>> match_prefix("cornell_spp16_nlm", ["cornell", "cornell_spp16", "corn", "box"])
+    'cornell_spp16'
+    >>> match_prefix("boxes_nlm", ["box"]) is None
+    True
+    """
+    best: str | None = None
+    for cand in candidates:
+        if not cand or not stem.startswith(cand):
+            continue
+        if len(stem) > len(cand) and stem[len(cand)].isalnum():
+            continue
+        if best is None or len(cand) > len(best):
+            best = cand
+    return best
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _key(p: Path) -> str:
+    return str(p.resolve())
+
+
+# --- metadata -----------------------------------------------------------------------------
+
+
+@dataclass
+class _Meta:
+    """What the header of one EXR says about how it was made."""
+
+    path: Path
+    method: str | None = None
+    source: str | None = None
+    seconds: float | None = None
+    device: str | None = None
+    params: str | None = None
+    spp: int | None = None
+
+
+def _as_int(v: Any) -> int | None:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return int(f) if np.isfinite(f) and f == int(f) and f > 0 else None
+
+
+def _as_float(v: Any) -> float | None:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if np.isfinite(f) else None
+
+
+def _meta(path: Path, attributes: Mapping[str, Any], spp: int | None) -> _Meta:
+    attrs = dict(attributes)
+    params = attrs.get(ATTR_PARAMS)
+    if params is not None and not isinstance(params, str):
+        params = json.dumps(params, sort_keys=True, default=str)
+    method = attrs.get(ATTR_METHOD)
+    source = attrs.get(ATTR_SOURCE)
+    device = attrs.get(ATTR_DEVICE)
+    spp_value = _as_int(attrs.get(ATTR_SPP)) or _as_int(spp)
+    if spp_value is None:
+        m = _SPP_IN_NAME.search(path.stem)
+        spp_value = int(m.group(1)) if m else None
+    return _Meta(
+        path=path,
+        method=str(method) if method not in (None, "") else None,
+        source=str(source) if source not in (None, "") else None,
+        seconds=_as_float(attrs.get(ATTR_SECONDS)),
+        device=str(device) if device not in (None, "") else None,
+        params=params,
+        spp=spp_value,
+    )
+
+
+def _probe(path: Path) -> _Meta:
+    """Header metadata of one EXR (first part), without reading pixels."""
+    from mcdenoise.io.exr import probe_exr
+
+    return _meta(path, probe_exr(path)[0].attributes, None)
+
+
+def _load(path: Path) -> tuple[np.ndarray, _Meta]:
+    """Colour ``(3, H, W)`` float32 linear HDR RGB and metadata of one EXR."""
+    from mcdenoise.io import load_buffers
+
+    buf = load_buffers(path)
+    color = buf["color"].detach().cpu().numpy()
+    return color, _meta(path, buf.attributes, buf.spp)
+
+
+# --- the engine ---------------------------------------------------------------------------
+
+
+@dataclass
+class _Job:
+    """One image to evaluate: its record (metadata filled in) and how to get its pixels."""
+
+    record: EvalRecord
+    load: Callable[[], np.ndarray]
+    input_key: str | None = None  # record.file of its noisy input row, if any
+    extra_notes: list[str] = field(default_factory=list)
+
+
+def _evaluate_scene(
+    result: EvalResult,
+    scene: str,
+    reference_name: str,
+    reference: np.ndarray,
+    jobs: Sequence[_Job],
+    progress: Callable[[], None] | None = None,
+) -> None:
+    """Compute metrics and preview crops of ``jobs`` against one reference; append records."""
+    ref = as_image(reference, reference_name)
+    exposure = auto_exposure(ref)
+    window = choose_crop(ref, exposure)
+    full = (ref.shape[1], ref.shape[2])
+    preview = ScenePreview(
+        window=window, full_shape=full, exposure=exposure, reference=crop(ref, window)
+    )
+    if window != (0, 0, *full):
+        preview.overview, preview.overview_factor = overview(ref)
+    result.references[scene] = reference_name
+    result.previews[scene] = preview
+    records: dict[str, EvalRecord] = {}
+    for job in jobs:
+        rec = job.record
+        image = as_image(job.load(), rec.file)
+        check_same_shape(image, ref, output_name=rec.file, reference_name=reference_name)
+        values = compute_metrics(
+            image, ref, result.metrics, output_name=rec.file, reference_name=reference_name
+        )
+        rec.metrics = values.values
+        rec.unavailable = values.unavailable
+        rec.failed = values.failed
+        rec.reason = values.reason
+        rec.bad_pixels = values.bad_pixels
+        rec.notes.extend(job.extra_notes)
+        preview.images[rec.file] = crop(image, window)
+        records[rec.file] = rec
+        result.records.append(rec)
+        if progress is not None:
+            progress()
+    for job in jobs:
+        rec = job.record
+        noisy = records.get(job.input_key) if job.input_key else None
+        if rec.role == ROLE_NOISY:
+            noisy = rec
+        rec.relmse_ratio = _ratio(rec, noisy)
+
+
+def _ratio(rec: EvalRecord, noisy: EvalRecord | None) -> float | None:
+    if noisy is None or rec.failed or noisy.failed:
+        return None
+    a, b = rec.metrics.get("relmse"), noisy.metrics.get("relmse")
+    if a is None or b is None or b <= 0:
+        return None
+    return float(a) / float(b)
+
+
+def _new_result(metrics: Sequence[str] | None) -> EvalResult:
+    return EvalResult(
+        metrics=_resolve_metrics(metrics),
+        version=__version__,
+        created=_dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec="seconds"),
+    )
+
+
+# --- arrays -------------------------------------------------------------------------------
+
+
+def evaluate_arrays(
+    reference: ArrayLike,
+    outputs: Mapping[str, ArrayLike],
+    *,
+    noisy: ArrayLike | None = None,
+    scene: str = "scene",
+    metrics: Sequence[str] | None = None,
+    info: Mapping[str, Mapping[str, Any]] | None = None,
+) -> EvalResult:
+    """Evaluate in-memory images of one scene; the array counterpart of :func:`evaluate`.
+
+    Args:
+        reference: ``(3, H, W)`` linear HDR RGB reference (numpy or torch).
+        outputs: label -> ``(3, H, W)`` linear HDR RGB output; the label is the record's
+            ``file`` and, unless ``info`` says otherwise, its method.
+        noisy: the noisy input all outputs were made from; evaluated as the row ``"noisy"``.
+        scene: scene name of every record.
+        metrics: metric names (default: all registered).
+        info: optional label -> ``{"method", "spp", "seconds", "device", "params"}``; the
+            label ``"noisy"`` describes the noisy input.
+
+    Raises:
+        InputError: an image is not ``(3, H, W)``, differs in size from the reference, or a
+            metric name is unknown.
+    """
+    result = _new_result(metrics)
+    info = info or {}
+    jobs: list[_Job] = []
+    if noisy is not None:
+        meta = dict(info.get("noisy", {}))
+        rec = EvalRecord(
+            scene=scene,
+            file="noisy",
+            role=ROLE_NOISY,
+            method="noisy",
+            spp=_as_int(meta.get("spp")),
+        )
+        jobs.append(_Job(rec, lambda: noisy))
+    for label, array in outputs.items():
+        meta = dict(info.get(label, {}))
+        rec = EvalRecord(
+            scene=scene,
+            file=str(label),
+            method=str(meta.get("method", label)),
+            input="noisy" if noisy is not None else None,
+            spp=_as_int(meta.get("spp")) or _as_int(info.get("noisy", {}).get("spp")),
+            seconds=_as_float(meta.get("seconds")),
+            device=meta.get("device"),
+            params=None if meta.get("params") is None else str(meta.get("params")),
+        )
+        jobs.append(_Job(rec, lambda a=array: a, input_key="noisy" if noisy is not None else None))
+    _evaluate_scene(result, scene, "reference", as_image(reference, "reference"), jobs)
+    return result
+
+
+# --- files --------------------------------------------------------------------------------
+
+
+@dataclass
+class _Planned:
+    """An output file, its scene, and the noisy input it was made from."""
+
+    meta: _Meta
+    scene: str
+    input: Path | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def evaluate(
+    reference: PathLike,
+    outputs: Sequence[PathLike],
+    *,
+    inputs: Sequence[PathLike] | None = None,
+    metrics: Sequence[str] | None = None,
+    progress: bool = False,
+) -> EvalResult:
+    """Evaluate denoised EXR files (and their noisy inputs) against reference EXR(s).
+
+    Args:
+        reference: a reference EXR, or a folder of reference EXRs (matched to each output by
+            the longest stem prefix, see :func:`match_prefix`; the scene is the reference stem).
+        outputs: denoised EXR files and/or folders of them (``*.exr``, not recursive).
+        inputs: noisy input EXR files/folders, used for outputs whose ``mcdenoise:source`` is
+            absent or missing on disk (matched by longest stem prefix); each is evaluated as a
+            ``"noisy"`` row of the scene it matches.
+        metrics: metric names (default: every registered metric; FLIP is reported as
+            unavailable, with the reason, when ``flip_evaluator`` is not installed).
+        progress: show a tqdm progress bar on stderr.
+
+    Returns:
+        An :class:`~mcdenoise.eval.results.EvalResult` with one record per evaluated image.
+
+    Raises:
+        InputError: a path does not exist, an output matches no reference (the message names
+            it), an output is a reference, or an image differs in size from its reference
+            (the message names both files and sizes).
+        mcdenoise.errors.ExrError: an EXR cannot be read.
+    """
+    result = _new_result(metrics)
+    refs = _references(reference)
+    single = Path(reference).is_file()
+
+    # 1. every given output, deduplicated, with its header metadata (pixels are read later)
+    given: dict[str, _Meta] = {}
+    for arg in outputs:
+        from_folder = Path(arg).is_dir()
+        for f in scan_exr(arg, what="output"):
+            ref_hit = next((r for r in refs.values() if _same_file(f, r)), None)
+            if ref_hit is not None:
+                if from_folder:
+                    continue
+                raise InputError(f"output {f} is the reference itself")
+            if _key(f) not in given:
+                given[_key(f)] = _probe(f)
+    if not given:
+        raise InputError("no output to evaluate (only references were given)")
+    noisy_given: dict[str, Path] = {}
+    for arg in inputs or ():
+        for f in scan_exr(arg, what="noisy input"):
+            noisy_given[_key(f)] = f
+
+    def scene_of(p: Path, what: str) -> str:
+        if single:
+            return next(iter(refs))
+        hit = match_prefix(p.stem, list(refs))
+        if hit is None:
+            raise InputError(
+                f"{what} {p} matches no reference in {reference} "
+                f"(references: {', '.join(sorted(refs))})"
+            )
+        return hit
+
+    # 2. find each output's noisy input
+    planned: dict[str, _Planned] = {}
+    for key, meta in given.items():
+        plan = _Planned(meta=meta, scene=scene_of(meta.path, "output"))
+        if meta.source is not None:
+            src = Path(meta.source)
+            if not src.is_absolute() and not src.is_file():
+                src = meta.path.parent / src  # a relative source: relative to the output
+            if src.is_file():
+                plan.input = src
+            else:
+                plan.notes.append(f"noisy input {meta.source} ({ATTR_SOURCE}) not found")
+        if plan.input is None and noisy_given:
+            by_stem = {p.stem: p for p in noisy_given.values()}
+            hit = match_prefix(meta.path.stem, list(by_stem))
+            if hit is not None and _key(by_stem[hit]) != key:
+                plan.input = by_stem[hit]
+        planned[key] = plan
+
+    # 3. a given file without a method attribute that is another output's input is a noisy row
+    sources = {_key(p.input) for p in planned.values() if p.input is not None}
+    for key in list(planned):
+        if planned[key].meta.method is None and (key in sources or key in noisy_given):
+            noisy_given.setdefault(key, planned.pop(key).meta.path)
+    # (an input that is itself an evaluated output, e.g. a denoiser chain, gets no noisy row)
+    noisy_files: dict[str, Path] = {k: p for k, p in noisy_given.items() if k not in planned}
+    for plan in planned.values():
+        if plan.input is not None and _key(plan.input) not in planned:
+            noisy_files.setdefault(_key(plan.input), plan.input)
+
+    # 4. noisy inputs: metadata and scene
+    noisy_meta: dict[str, _Meta] = {}
+    noisy_scene: dict[str, str] = {}
+    for key, path in noisy_files.items():
+        noisy_meta[key] = given[key] if key in given else _probe(path)
+        users = [p.scene for p in planned.values() if p.input is not None and _key(p.input) == key]
+        noisy_scene[key] = users[0] if users else scene_of(path, "noisy input")
+
+    # 5. jobs per scene: each noisy input (by spp, name) followed by its outputs, then the rest
+    total = len(noisy_files) + len(planned)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc="eval", unit="image")
+    try:
+        for scene in sorted({*noisy_scene.values(), *(p.scene for p in planned.values())}):
+            jobs: list[_Job] = []
+            scene_noisy = sorted(
+                (k for k, s in noisy_scene.items() if s == scene),
+                key=lambda k: (noisy_meta[k].spp or 0, str(noisy_files[k])),
+            )
+            scene_outputs = sorted(
+                (p for p in planned.values() if p.scene == scene), key=lambda p: str(p.meta.path)
+            )
+            placed: set[str] = set()
+            for nkey in scene_noisy:
+                jobs.append(_file_job(noisy_meta[nkey], scene, ROLE_NOISY, "noisy", None))
+                for plan in scene_outputs:
+                    if plan.input is not None and _key(plan.input) == nkey:
+                        jobs.append(_output_job(plan, noisy_meta[nkey]))
+                        placed.add(_key(plan.meta.path))
+            for plan in scene_outputs:
+                if _key(plan.meta.path) not in placed:
+                    upstream = given.get(_key(plan.input)) if plan.input is not None else None
+                    jobs.append(_output_job(plan, upstream))
+            ref_path = refs[scene]
+            ref_color = _load(ref_path)[0]
+            _evaluate_scene(
+                result,
+                scene,
+                str(ref_path),
+                ref_color,
+                jobs,
+                progress=bar.update if bar is not None else None,
+            )
+    finally:
+        if bar is not None:
+            bar.close()
+    return result
+
+
+def _references(reference: PathLike) -> dict[str, Path]:
+    """Scene (stem) -> reference file."""
+    files = scan_exr(reference, what="reference")
+    refs: dict[str, Path] = {}
+    for f in files:
+        if f.stem in refs:
+            raise InputError(f"two references for scene {f.stem!r}: {refs[f.stem]} and {f}")
+        refs[f.stem] = f
+    return refs
+
+
+def _file_job(meta: _Meta, scene: str, role: str, method: str, input_path: Path | None) -> _Job:
+    rec = EvalRecord(
+        scene=scene,
+        file=str(meta.path),
+        role=role,
+        method=method,
+        input=None if input_path is None else str(input_path),
+        spp=meta.spp,
+        seconds=meta.seconds if role == ROLE_OUTPUT else None,
+        device=meta.device if role == ROLE_OUTPUT else None,
+        params=meta.params if role == ROLE_OUTPUT else None,
+    )
+    path = meta.path
+
+    def load() -> np.ndarray:
+        color, loaded = _load(path)
+        if rec.spp is None:
+            rec.spp = loaded.spp
+        return color
+
+    return _Job(rec, load)
+
+
+def _output_job(plan: _Planned, noisy: _Meta | None) -> _Job:
+    meta = plan.meta
+    method = meta.method or _method_from_name(meta.path.stem, noisy, plan.scene)
+    job = _file_job(meta, plan.scene, ROLE_OUTPUT, method, None if noisy is None else noisy.path)
+    if job.record.spp is None and noisy is not None:
+        job.record.spp = noisy.spp
+    job.input_key = None if noisy is None else str(noisy.path)
+    job.extra_notes = list(plan.notes)
+    return job
+
+
+def _method_from_name(stem: str, noisy: _Meta | None, scene: str) -> str:
+    """Method of an output without ``mcdenoise:method``: its stem after the input's/scene's."""
+    for prefix in (noisy.path.stem if noisy is not None else None, scene):
+        if prefix and stem.startswith(prefix) and len(stem) > len(prefix):
+            rest = stem[len(prefix) :].lstrip("_-.")
+            if rest:
+                return rest
+    return stem
+
+
+def run_eval(
+    reference: PathLike,
+    outputs: Sequence[PathLike],
+    out_dir: PathLike,
+    *,
+    inputs: Sequence[PathLike] | None = None,
+    metrics: Sequence[str] | None = None,
+    progress: bool = False,
+) -> tuple[EvalResult, dict[str, Path]]:
+    """:func:`evaluate` then :func:`~mcdenoise.eval.report.write_report` into ``out_dir``.
+
+    Returns:
+        The result and the written paths (``json``, ``csv``, ``html``, ``images``).
+    """
+    from mcdenoise.eval.report import write_report
+
+    result = evaluate(reference, outputs, inputs=inputs, metrics=metrics, progress=progress)
+    return result, write_report(result, out_dir)

@@ -1,0 +1,230 @@
+"""Result records of an evaluation, and their JSON-safe form.
+
+An evaluation is a flat list of :class:`EvalRecord` (one per evaluated image: each denoised
+output and each noisy input, grouped by ``scene``), not a fixed table, so later experiments
+(error vs spp, equal time) can add records and fields without a new format.
+
+JSON has no infinity and no NaN: :func:`jsonable` writes ``+inf`` as the string ``"inf"``
+(``-inf`` as ``"-inf"``, NaN as ``"nan"``); missing values are ``null``. The same strings are
+used in CSV cells (missing values are empty cells). PSNR of an output identical to its
+reference is the main source of ``"inf"``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: Version of the results.json layout; bump when fields change meaning.
+SCHEMA = "mcdenoise.eval/1"
+
+#: ``role`` of a record: a denoised output, or the noisy input it was made from.
+ROLE_OUTPUT = "output"
+ROLE_NOISY = "noisy"
+
+
+@dataclass
+class EvalRecord:
+    """One evaluated image of one scene.
+
+    Attributes:
+        scene: scene name (the reference file's stem).
+        file: path of the evaluated EXR (or a label when arrays were evaluated).
+        role: ``"output"`` or ``"noisy"`` (the noisy input, shown as method ``"noisy"``).
+        method: denoising method (``mcdenoise:method``), ``"noisy"`` for noisy inputs.
+        input: noisy input this output was made from, when known and evaluated.
+        spp: samples per pixel of the (noisy) input, when known.
+        seconds: denoise wall time (``mcdenoise:seconds``), when known.
+        device: device the denoiser ran on (``mcdenoise:device``), when known.
+        params: denoiser parameters as recorded (``mcdenoise:params``, JSON text), if any.
+        metrics: metric name -> value (``None`` when failed or unavailable; PSNR may be inf).
+        unavailable: metric name -> reason it could not be computed.
+        relmse_ratio: relMSE of this image / relMSE of its noisy input (1 for noisy rows).
+        failed: the image has NaN/Inf pixels (or its reference has): no metric computed.
+        reason: one line explaining the failure.
+        bad_pixels: number of pixels with a non-finite channel.
+        notes: other remarks for the reader (e.g. noisy input named but not found).
+    """
+
+    scene: str
+    file: str
+    role: str = ROLE_OUTPUT
+    method: str = ""
+    input: str | None = None
+    spp: int | None = None
+    seconds: float | None = None
+    device: str | None = None
+    params: str | None = None
+    metrics: dict[str, float | None] = field(default_factory=dict)
+    unavailable: dict[str, str] = field(default_factory=dict)
+    relmse_ratio: float | None = None
+    failed: bool = False
+    reason: str | None = None
+    bad_pixels: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dict (see :func:`jsonable` for inf/NaN)."""
+        return jsonable(
+            {
+                "scene": self.scene,
+                "file": self.file,
+                "role": self.role,
+                "method": self.method,
+                "input": self.input,
+                "spp": self.spp,
+                "seconds": self.seconds,
+                "device": self.device,
+                "params": self.params,
+                "metrics": self.metrics,
+                "unavailable": self.unavailable,
+                "relmse_ratio": self.relmse_ratio,
+                "failed": self.failed,
+                "reason": self.reason,
+                "bad_pixels": self.bad_pixels,
+                "notes": self.notes,
+            }
+        )
+
+
+@dataclass
+class ScenePreview:
+    """Small linear-HDR crops of one scene's images, for the report's image strip.
+
+    Attributes:
+        window: ``(y0, x0, h, w)`` of the crop in the full image (the whole image if small).
+        full_shape: ``(H, W)`` of the full images.
+        exposure: display exposure chosen from the reference (see ``tonemap.auto_exposure``).
+        reference: ``(3, h, w)`` float32 linear HDR RGB crop of the reference.
+        images: record ``file`` -> ``(3, h, w)`` float32 linear HDR RGB crop of that image.
+        overview: ``(3, th, tw)`` float32 downscaled full reference (shows where the crop is),
+            or ``None`` when the crop is the whole image.
+        overview_factor: the integer downscale factor of ``overview``.
+    """
+
+    window: tuple[int, int, int, int]
+    full_shape: tuple[int, int]
+    exposure: float
+    reference: np.ndarray
+    images: dict[str, np.ndarray] = field(default_factory=dict)
+    overview: np.ndarray | None = None
+    overview_factor: int = 1
+
+
+@dataclass
+class EvalResult:
+    """Everything an evaluation produced: records, references, metric list, previews.
+
+    Attributes:
+        records: one :class:`EvalRecord` per evaluated image, grouped by scene, noisy inputs
+            first within a scene.
+        references: scene -> reference file (or label).
+        metrics: metric names evaluated, in column order.
+        previews: scene -> :class:`ScenePreview` (not written to JSON).
+        version: mcdenoise version that computed the numbers.
+        created: ISO 8601 time of the evaluation.
+    """
+
+    records: list[EvalRecord] = field(default_factory=list)
+    references: dict[str, str] = field(default_factory=dict)
+    metrics: list[str] = field(default_factory=list)
+    previews: dict[str, ScenePreview] = field(default_factory=dict)
+    version: str = ""
+    created: str = ""
+
+    def scenes(self) -> list[str]:
+        """Scene names in first-seen order."""
+        return list(dict.fromkeys([*self.references, *(r.scene for r in self.records)]))
+
+    def scene_records(self, scene: str) -> list[EvalRecord]:
+        """Records of ``scene``, in order."""
+        return [r for r in self.records if r.scene == scene]
+
+    @property
+    def any_failed(self) -> bool:
+        """True when at least one record failed."""
+        return any(r.failed for r in self.records)
+
+    def format_table(self) -> str:
+        """A plain-text summary table (one line per record) for terminals and logs."""
+        from mcdenoise.eval.metrics import METRICS
+
+        shown = [m for m in self.metrics if any(r.metrics.get(m) is not None for r in self.records)]
+        head = ["scene", "method", "spp", *(METRICS[m].label for m in shown), "vs noisy", "status"]
+        rows = [head]
+        for r in self.records:
+            cells = [r.scene, r.method, "" if r.spp is None else str(r.spp)]
+            cells += [_short(r.metrics.get(m)) for m in shown]
+            cells.append("" if r.relmse_ratio is None else f"{r.relmse_ratio:.3g}x")
+            cells.append(f"FAILED: {r.reason}" if r.failed else "ok")
+            rows.append(cells)
+        widths = [max(len(row[i]) for row in rows) for i in range(len(head) - 1)]
+        lines = [
+            "  ".join(c.ljust(w) for c, w in zip(row[:-1], widths)) + "  " + row[-1] for row in rows
+        ]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dict: schema, version, metric definitions, references and records."""
+        from mcdenoise.eval.metrics import METRICS
+
+        return jsonable(
+            {
+                "schema": SCHEMA,
+                "mcdenoise_version": self.version,
+                "created": self.created,
+                "encoding": (
+                    'Non-finite numbers are strings: "inf", "-inf", "nan" (PSNR of an output '
+                    'identical to its reference is "inf"); missing values are null.'
+                ),
+                "metrics": {name: METRICS[name].describe() for name in self.metrics},
+                "references": self.references,
+                "records": [r.to_dict() for r in self.records],
+            }
+        )
+
+
+def _short(value: float | None) -> str:
+    if value is None:
+        return "-"
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return f"{value:.4g}"
+
+
+def encode_float(value: float) -> float | str:
+    """A float for JSON/CSV: finite values unchanged, ``inf`` -> ``"inf"``, NaN -> ``"nan"``."""
+    v = float(value)
+    if math.isnan(v):
+        return "nan"
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return v
+
+
+def decode_float(value: Any) -> float | None:
+    """Inverse of :func:`encode_float` (``None`` and ``""`` give ``None``)."""
+    if value is None or value == "":
+        return None
+    return float(value)
+
+
+def jsonable(obj: Any) -> Any:
+    """Recursively convert to JSON-safe types: numpy scalars to Python, non-finite floats to
+    strings (:func:`encode_float`), tuples to lists, paths to strings."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return encode_float(float(obj))
+    if obj is None or isinstance(obj, str):
+        return obj
+    return str(obj)
