@@ -1,0 +1,88 @@
+"""The ``mcdenoise`` command: click wiring only.
+
+Each command parses its options and calls one library function. Errors caused by the input
+(:class:`mcdenoise.errors.McdenoiseError`, missing or unreadable files) are printed as one line
+``mcdenoise: error: ...`` on stderr with exit code 1; usage errors exit with 2 (click's
+convention); Ctrl-C exits with 130. Set ``MCDENOISE_DEBUG=1`` to see tracebacks.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import click
+
+from mcdenoise import __version__
+
+EXIT_ERROR = 1
+EXIT_INTERRUPTED = 130
+
+
+class _Group(click.Group):
+    """A click group that turns library errors into one-line messages."""
+
+    def invoke(self, ctx: click.Context):  # type: ignore[override]
+        from mcdenoise.errors import McdenoiseError
+
+        debug = os.environ.get("MCDENOISE_DEBUG", "") not in ("", "0")
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.Abort):
+            raise
+        except KeyboardInterrupt:
+            if debug:
+                raise
+            click.echo("\nmcdenoise: interrupted; outputs already written are complete", err=True)
+            ctx.exit(EXIT_INTERRUPTED)
+        except (McdenoiseError, OSError) as err:
+            if debug:
+                raise
+            click.echo(f"mcdenoise: error: {_one_line(err)}", err=True)
+            ctx.exit(EXIT_ERROR)
+        except Exception as err:  # a bug: still one line, with the way to get the traceback
+            if debug:
+                raise
+            click.echo(
+                f"mcdenoise: internal error: {type(err).__name__}: {_one_line(err)} "
+                "(set MCDENOISE_DEBUG=1 for the traceback, and please report it)",
+                err=True,
+            )
+            ctx.exit(EXIT_ERROR)
+
+
+def _one_line(err: BaseException) -> str:
+    if isinstance(err, OSError) and not str(err).strip() and err.filename:
+        return f"{err.strerror or 'cannot access'}: {err.filename}"
+    text = " ".join(str(err).split())
+    if isinstance(err, OSError) and err.filename and str(err.filename) not in text:
+        text = f"{text}: {err.filename}"
+    return text or type(err).__name__
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="mcdenoise")
+def main() -> None:
+    """Monte Carlo denoising experiments: denoise EXR renders, compare methods, report.
+
+    \b
+    Typical use:
+      mcdenoise info noisy.exr                    what the file holds
+      mcdenoise denoise noisy.exr -o out.exr      best available method
+      mcdenoise eval --ref ref.exr out.exr -o report/
+    """
+
+
+def _register() -> None:
+    from mcdenoise_cli import denoise_cmd, eval_cmd, info_cmd
+
+    main.add_command(denoise_cmd.denoise)
+    main.add_command(denoise_cmd.methods_cmd)
+    main.add_command(info_cmd.info)
+    main.add_command(eval_cmd.eval_cmd)
+
+
+_register()
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Peer denoisers mcdenoise compares against (OIDN)."""

@@ -1,0 +1,64 @@
+"""Intel Open Image Denoise through ``pyoidn`` (optional extra ``mcdenoise[oidn]``).
+
+OIDN is the industry's reference denoiser, so every experiment can be compared with it. We call
+its ``RT`` filter in HDR mode with the auxiliary buffers OIDN documents: albedo in [0, 1] and
+world- or view-space normals in [-1, 1] (both optional; OIDN prefilters them unless
+``clean_aux`` is set). OIDN needs the colour to be non-negative and finite, so the caller passes
+sanitised buffers.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import torch
+
+from mcdenoise.errors import InputError
+
+
+def unavailable_reason() -> str | None:
+    """``None`` when pyoidn can be imported, else a one-line reason with the install hint."""
+    if importlib.util.find_spec("pyoidn") is None:
+        return "pyoidn is not installed (pip install 'mcdenoise[oidn]')"
+    return None
+
+
+def _hwc(t: torch.Tensor) -> np.ndarray:
+    # (3, H, W) -> contiguous (H, W, 3) float32
+    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+
+
+def oidn_denoise(
+    color: torch.Tensor,
+    albedo: torch.Tensor | None = None,
+    normal: torch.Tensor | None = None,
+    *,
+    quality: str = "high",
+    clean_aux: bool = False,
+) -> torch.Tensor:
+    """Denoise ``color`` with OIDN's RT filter (HDR).
+
+    Args:
+        color: ``(3, H, W)`` linear HDR RGB, finite and >= 0.
+        albedo: optional ``(3, H, W)`` reflectance; clamped to [0, 1] for OIDN.
+        normal: optional ``(3, H, W)`` shading normal in [-1, 1]; only used together with
+            albedo (OIDN's rule: normal requires albedo).
+        quality: ``"high"``, ``"balanced"`` or ``"fast"``.
+        clean_aux: the auxiliary buffers are noise-free (skip OIDN's prefiltering).
+
+    Returns:
+        ``(3, H, W)`` float32 tensor on ``color``'s device.
+    """
+    reason = unavailable_reason()
+    if reason:
+        raise InputError(reason)
+    import pyoidn
+
+    if quality not in ("high", "balanced", "fast", "default"):
+        raise InputError(f"oidn quality must be high, balanced or fast, got {quality!r}")
+    c = _hwc(color.clamp_min(0))
+    a = _hwc(albedo.clamp(0, 1)) if albedo is not None else None
+    n = _hwc(normal.clamp(-1, 1)) if (normal is not None and albedo is not None) else None
+    out = pyoidn.denoise(c, a, n, hdr=True, clean_aux=clean_aux, quality=quality)
+    return torch.from_numpy(np.asarray(out, dtype=np.float32)).permute(2, 0, 1).to(color.device)

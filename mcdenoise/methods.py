@@ -1,0 +1,88 @@
+"""The built-in denoising methods, registered in :mod:`mcdenoise.registry` on import.
+
+=================  ==========================================================  ========
+name               what                                                        priority
+=================  ==========================================================  ========
+nlm                variance-normalised non-local means with feature weights    20
+                   (Rousselle 2012/2013), albedo-demodulated
+cross-bilateral    cross-bilateral filter with Kalantari 2015 terms, fixed     10
+                   default bandwidths (alias ``xbf``)
+oidn               Intel Open Image Denoise (pyoidn), colour + albedo +        0
+                   normal; a peer to compare with, never the default
+=================  ==========================================================  ========
+
+The default method (no ``--method``) is the available one with the highest priority. OIDN is
+deliberately never the default: mcdenoise's own methods are what it reports on, OIDN is the
+baseline they are compared with.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+
+from mcdenoise.baselines.oidn import oidn_denoise, unavailable_reason
+from mcdenoise.filters.prepare import NlmSettings, XbfSettings, denoise_nlm, denoise_xbf
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.registry import Method, dataclass_defaults, register
+
+GUIDES = ("albedo", "normal", "depth", "position")
+GUIDE_VARS = tuple(g + "_var" for g in GUIDES)
+
+
+def _run_nlm(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
+    return denoise_nlm(b, **params)
+
+
+def _run_xbf(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
+    return denoise_xbf(b, **params)
+
+
+def _run_oidn(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
+    return oidn_denoise(
+        b["color"],
+        b.get("albedo"),
+        b.get("normal"),
+        quality=str(params["quality"]),
+        clean_aux=bool(params["clean_aux"]),
+    )
+
+
+register(
+    Method(
+        name="nlm",
+        summary="non-local means, variance-normalised patches + feature weights (Rousselle 2012/13)",
+        requires=("color",),
+        uses=("color_var", *GUIDES, *GUIDE_VARS),
+        defaults=dataclass_defaults(NlmSettings),
+        run=_run_nlm,
+        priority=20,
+    )
+)
+register(
+    Method(
+        name="cross-bilateral",
+        summary="cross-bilateral filter with colour and feature terms (Kalantari 2015 form)",
+        requires=("color",),
+        uses=("color_var", *GUIDES, *GUIDE_VARS),
+        defaults=dataclass_defaults(XbfSettings),
+        run=_run_xbf,
+        priority=10,
+    ),
+    aliases=("xbf", "cross_bilateral"),
+)
+register(
+    Method(
+        name="oidn",
+        summary="Intel Open Image Denoise (pyoidn), HDR, with albedo and normal when present",
+        requires=("color",),
+        uses=("albedo", "normal"),
+        defaults={"quality": "high", "clean_aux": False},
+        run=_run_oidn,
+        priority=0,
+        unavailable=unavailable_reason,
+        devices=("cpu",),
+    )
+)
