@@ -8,6 +8,9 @@ Prints, on the current torch thread count:
    cross-bilateral filter (colour + albedo + normal + depth, per-pixel colour variance), and
    ``pyoidn.denoise(color, albedo, normal, hdr=True)`` on the same image, with each time's
    ratio to OIDN's (skipped with a note when pyoidn is missing);
+   Then the whole methods as ``mcdenoise denoise`` runs them (``mcdenoise.denoise.denoise`` on
+   a FeatureBuffers with feature variances: sanitising, feature prefiltering, albedo
+   demodulation, the filter), which is what a user waits for;
 2. peak resident memory of a fresh subprocess per measurement (``VmHWM``, reset once the
    inputs exist; ``ru_maxrss`` where there is no procfs) for a 3840×2160 frame through each
    filter, and the part above the inputs (target: <= 4 GB).
@@ -94,6 +97,16 @@ def run_filter(name: str, x: dict[str, torch.Tensor]) -> Callable[[], object]:
             sigma_features={"albedo": 0.1, "normal": 0.3, "depth": 0.02},
             color_var=x["color_var"],
         )
+    if name.startswith("method-"):
+        from mcdenoise.denoise import denoise
+        from mcdenoise.io import FeatureBuffers
+
+        bufs = {k: v[0] for k, v in x.items()}
+        for f in ("albedo", "normal", "depth"):  # small feature noise: the prefilter runs
+            bufs[f + "_var"] = torch.full_like(bufs[f], 1e-4)
+        fb = FeatureBuffers(bufs, spp=16)
+        method = name.removeprefix("method-")
+        return lambda: denoise(fb, method, device="cpu")
     if name == "oidn":
         import pyoidn
 
@@ -178,35 +191,44 @@ def timing_table(h: int, w: int, repeats: int) -> None:
         ("nlm", "non_local_means, 7x7 patches (function default)"),
         ("nlm-f1", "non_local_means, 3x3 patches (denoise_nlm default)"),
         ("xbf", "cross_bilateral, colour + albedo + normal + depth"),
+        ("method-nlm", "mcdenoise denoise --method nlm, whole pipeline"),
+        ("method-cross-bilateral", "mcdenoise denoise --method cross-bilateral, whole pipeline"),
     ]
     try:
         oidn_s: float | None = timed(run_filter("oidn", x), repeats)
     except ImportError:
         oidn_s = None
-    print(f"\n{'filter':<18}{'seconds':>9}{'target':>8}{'x OIDN':>9}  what")
-    print("-" * 96)
+    print(f"\n{'filter':<24}{'seconds':>9}{'target':>8}{'x OIDN':>9}  what")
+    print("-" * 102)
     for name, what in rows:
         s = timed(run_filter(name, x), repeats)
         target = f"{TARGETS[name]:.0f} s" if name in TARGETS and (h, w) == (1024, 1024) else ""
         ratio = f"{s / oidn_s:.1f}" if oidn_s else "-"
-        print(f"{name:<18}{s:>9.2f}{target:>8}{ratio:>9}  {what}")
+        print(f"{name:<24}{s:>9.2f}{target:>8}{ratio:>9}  {what}")
     if oidn_s is None:
         print("note: pyoidn is not installed: no OIDN time, no ratios")
     else:
         what = "pyoidn.denoise(color, albedo, normal, hdr=True)"
-        print(f"{'oidn':<18}{oidn_s:>9.2f}{'':>8}{1.0:>9.1f}  {what}")
+        print(f"{'oidn':<24}{oidn_s:>9.2f}{'':>8}{1.0:>9.1f}  {what}")
 
 
 def memory_table(mh: int, mw: int) -> None:
     """Peak RSS of one subprocess per filter on an ``mh × mw`` frame."""
     print(f"\npeak RSS, {mw}x{mh} frame, one subprocess each (target <= 4 GB through a filter)")
-    print(f"{'filter':<18}{'peak GB':>9}{'inputs GB':>11}{'filter GB':>11}")
-    print("-" * 49)
-    for name in ("kernels-callback", "nlm", "nlm-f1", "xbf"):
+    print(f"{'filter':<24}{'peak GB':>9}{'inputs GB':>11}{'filter GB':>11}")
+    print("-" * 55)
+    for name in (
+        "kernels-callback",
+        "nlm",
+        "nlm-f1",
+        "xbf",
+        "method-nlm",
+        "method-cross-bilateral",
+    ):
         m = peak_rss(name, mh, mw)
         note = "" if m["exact"] else "  (ru_maxrss: upper bound)"
         print(
-            f"{name:<18}{m['peak'] / 2**30:>9.2f}{m['inputs'] / 2**30:>11.2f}"
+            f"{name:<24}{m['peak'] / 2**30:>9.2f}{m['inputs'] / 2**30:>11.2f}"
             f"{(m['peak'] - m['inputs']) / 2**30:>11.2f}{note}"
         )
     gb = K * K * mh * mw * 4 / 2**30

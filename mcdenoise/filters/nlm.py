@@ -283,7 +283,13 @@ def _feature_terms(
     floors = per_feature(feature_floor, names, "feature_floor")
     dtype = color.dtype
     floor = bandwidth_floor(dtype)
-    terms: list[tuple[Tensor, Param]] = []  # (feature, per-pixel scale 1/(C k² N))
+    # All features are stacked into one tensor, so the difference and its square cost one op
+    # each whatever the number of features; then per feature: channel sum, per-pixel scale
+    # 1/(C_f k_f² N_f,i), max (or sum). (Measured fastest on CPU: a grouped 1×1 convolution
+    # for the per-feature sums was 10x slower on these strided tiles.)
+    f_list: list[Tensor] = []
+    scales: list[Tensor] = []
+    b, _, h, w = color.shape
     for (name, ft), kf, fv, fl in zip(feats, ks, fvars, floors):
         ft = check_image(ft, name).to(dtype)
         check_same_size(color, ft, name)
@@ -294,13 +300,26 @@ def _feature_terms(
         inv_k2 = (
             kp.clamp_min(floor).pow(-2) if isinstance(kp, Tensor) else 1.0 / max(kp, floor) ** 2
         )
-        terms.append((ft, inv_k2 / (norm * ft.shape[1])))
+        sc = inv_k2 / (norm * ft.shape[1])  # float, 0-d, (B,1,1,1) or (B,1,H,W)
+        sc = sc.expand(b, 1, h, w) if isinstance(sc, Tensor) else color.new_full((b, 1, h, w), sc)
+        f_list.append(ft)
+        scales.append(sc)
+    fstack = torch.cat(f_list, dim=1)  # (B, ΣC, H, W)
+    fscale = torch.cat(scales, dim=1)  # (B, F, H, W)
+    bounds: list[tuple[int, int]] = []
+    c0 = 0
+    for ft in f_list:
+        bounds.append((c0, c0 + ft.shape[1]))
+        c0 += ft.shape[1]
 
     def apply(win: Window, e: Tensor) -> Tensor:
-        for ft, scale in terms:
-            d = (win.neighbour(ft) - win.centre(ft)).square().sum(dim=1, keepdim=True)
-            d = d * win.param(scale)
-            e = torch.maximum(e, d) if combine == "min" else e + d
+        d = win.neighbour(fstack) - win.centre(fstack)  # (B,ΣC,h,w)
+        d = d.square() if d.requires_grad else d.mul_(d)
+        sc = win.centre(fscale)  # (B,F,h,w)
+        for i, (a, z) in enumerate(bounds):
+            per = d[:, a:z].sum(dim=1, keepdim=True) if z - a > 1 else d[:, a:z]
+            per = per * sc[:, i : i + 1]
+            e = torch.maximum(e, per) if combine == "min" else e + per
         return e
 
     return apply

@@ -281,7 +281,9 @@ class XbfSettings:
 
     ``sigma_color`` is in noise units (the colour distance is variance-normalised). With
     ``passes=2`` a second pass recomputes the colour distances on the first pass's result
-    (a far less noisy guide), with bandwidth ``sigma_color_refine``. ``sigma_<feature>`` are
+    (a far less noisy guide), with bandwidth ``sigma_color_refine``; on ``data/samples`` it
+    lowers relMSE by ~10% at 16 spp (geometric-mean reduction 12.7x vs 11.4x) and not at 4 spp,
+    for twice the filtering time, so the default is one pass. ``sigma_<feature>`` are
     feature bandwidths in the units of :func:`prepare_inputs` (albedo, unit normals, depth and
     position over the scene extent). Where a feature variance is present, ``sigma_<feature>²``
     becomes the floor of the variance normaliser (Kalantari 2015) and ``feature_scale`` the
@@ -292,7 +294,7 @@ class XbfSettings:
     kernel_size: int = 21
     sigma_spatial: float = 8.0
     sigma_color: float = 2.0
-    passes: int = 2
+    passes: int = 1
     sigma_color_refine: float = 0.5
     sigma_albedo: float = 0.1
     sigma_normal: float = 0.3

@@ -31,6 +31,17 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _final_mode(final: Path) -> int:
+    """Permissions for the new file: those of the file it replaces, else 0o666 minus umask
+    (``mkstemp`` creates 0o600 files, which ``os.replace`` would otherwise keep)."""
+    try:
+        return final.stat().st_mode & 0o7777
+    except OSError:
+        mask = os.umask(0)
+        os.umask(mask)
+        return 0o666 & ~mask
+
+
 def sweep_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
     """Remove temporaries in ``folder`` left by processes that no longer run; return them."""
     removed: list[Path] = []
@@ -70,6 +81,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     tmp = Path(name)
     try:
         yield tmp
+        os.chmod(tmp, _final_mode(final))
         os.replace(tmp, final)
     except BaseException:
         with contextlib.suppress(OSError):

@@ -58,3 +58,20 @@ def test_temporaries_of_dead_writers_are_swept_live_ones_kept(tmp_path):
     finally:
         live.kill()
         live.wait()
+
+
+def test_new_file_gets_umask_permissions_replaced_file_keeps_its_mode(tmp_path):
+    import os
+    import stat
+
+    mask = os.umask(0o022)
+    try:
+        write_text_atomic(tmp_path / "new.txt", "x")
+        assert stat.S_IMODE((tmp_path / "new.txt").stat().st_mode) == 0o644
+        old = tmp_path / "old.txt"
+        old.write_text("old")
+        old.chmod(0o640)
+        write_text_atomic(old, "new")
+        assert stat.S_IMODE(old.stat().st_mode) == 0o640
+    finally:
+        os.umask(mask)
