@@ -52,12 +52,13 @@ class _Group(click.Group):
 
 
 def _one_line(err: BaseException) -> str:
-    if isinstance(err, OSError) and not str(err).strip() and err.filename:
-        return f"{err.strerror or 'cannot access'}: {err.filename}"
-    text = " ".join(str(err).split())
-    if isinstance(err, OSError) and err.filename and str(err.filename) not in text:
-        text = f"{text}: {err.filename}"
-    return text or type(err).__name__
+    from mcdenoise.errors import McdenoiseError
+
+    if isinstance(err, OSError) and not isinstance(err, McdenoiseError) and err.strerror:
+        # "[Errno 2] No such file or directory: 'x'" -> "No such file or directory: x"
+        where = ", ".join(str(f) for f in (err.filename, err.filename2) if f is not None)
+        return f"{err.strerror}: {where}" if where else err.strerror
+    return " ".join(str(err).split()) or type(err).__name__
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -159,6 +159,17 @@ def test_unwritable_output_folder(tmp_path):
         locked.chmod(0o700)
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux procfs")
+def test_unwritable_output_even_for_root(tmp_path):
+    """/proc/self accepts no new files, whoever runs the tests (CI may run as root)."""
+    src = make_noisy(tmp_path / "n.exr")
+    msg = one_line_error(run("denoise", str(src), "-o", "/proc/self/o.exr"))
+    assert "/proc/self" in msg
+    other = make_noisy(tmp_path / "n_other.exr", seed=3)
+    msg = one_line_error(run("eval", "--ref", str(src), str(other), "-o", "/proc/self/report"))
+    assert "/proc/self/report" in msg and "Errno" not in msg
+
+
 def test_output_in_missing_folder(tmp_path):
     src = make_noisy(tmp_path / "n.exr")
     msg = one_line_error(run("denoise", str(src), "-o", str(tmp_path / "no" / "such" / "o.exr")))

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 import torch
 
@@ -18,7 +16,6 @@ from mcdenoise.filters.prepare import (
 )
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 
-SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 DENOISERS = [denoise_xbf, denoise_nlm]
 
 
@@ -212,31 +209,18 @@ def test_bad_settings_and_inputs(scene) -> None:
         prepare_inputs(FeatureBuffers(buffers={"albedo": torch.rand(3, 4, 4)}))
 
 
-def _sample_pairs(scenes: list[str]):
-    try:
-        from mcdenoise.io.buffer_files import load_buffers
-    except ImportError:  # the reader is another part of the project
-        pytest.skip("mcdenoise.io.buffer_files is not available")
-    for scene in scenes:
-        noisy, ref = SAMPLES / f"{scene}_spp16.exr", SAMPLES / "ref" / f"{scene}.exr"
-        if not (noisy.is_file() and ref.is_file()):
-            pytest.skip(f"sample render {noisy} not present")
-        yield scene, load_buffers(noisy), load_buffers(ref)["color"]
+@pytest.mark.parametrize("spp", [4, 16])
+@pytest.mark.parametrize("scene", ["cornell", "materials", "caustic", "dof"])
+def test_defaults_on_the_sample_renders(samples_dir, scene, spp) -> None:
+    """The tuned defaults on real path-traced renders (shipped in data/samples, never skipped):
+    at 16 spp each filter cuts relMSE >= 3x (the foundation issue's target); at 4 spp each is
+    strictly better than the noisy input."""
+    from mcdenoise.io import load_buffers
 
-
-def _check_samples(scenes: list[str]) -> None:
-    for scene, fb, ref in _sample_pairs(scenes):
-        noisy = rel(fb["color"], ref)
-        for denoise in DENOISERS:
-            gain = noisy / rel(denoise(fb), ref)
-            assert gain >= 3.0, f"{denoise.__name__} on {scene}: relMSE only {gain:.2f}x lower"
-
-
-def test_defaults_on_a_real_render() -> None:
-    # The tuned defaults must cut relMSE >= 3x on a real 16 spp path-traced render.
-    _check_samples(["cornell"])
-
-
-@pytest.mark.slow
-def test_defaults_on_all_sample_renders() -> None:
-    _check_samples(["cornell", "materials", "caustic", "dof"])
+    fb = load_buffers(samples_dir / f"{scene}_spp{spp}.exr")
+    ref = load_buffers(samples_dir / "ref" / f"{scene}.exr")["color"]
+    noisy = rel(fb["color"], ref)
+    for denoise in DENOISERS:
+        gain = noisy / rel(denoise(fb), ref)
+        need = 3.0 if spp == 16 else 1.0
+        assert gain > need, f"{denoise.__name__} on {scene} at {spp} spp: only {gain:.2f}x"
