@@ -256,7 +256,7 @@ def _new_result(metrics: Sequence[str] | None) -> EvalResult:
     return EvalResult(
         metrics=_resolve_metrics(metrics),
         version=__version__,
-        created=_dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec="seconds"),
+        created=_dt.datetime.now(_dt.UTC).astimezone().isoformat(timespec="seconds"),
     )
 
 

@@ -1,0 +1,751 @@
+"""Scene specs: a small TOML schema for the scenes ``mcdenoise render`` renders.
+
+A spec describes geometry, materials, lights and a camera, and **declares its light-transport
+effects**; the renderer simulates (and pays for) only those (see :mod:`mcdenoise.render.effects`).
+Specs are plain data: this module parses and validates them and knows nothing of Mitsuba.
+
+Schema (every length in scene units, every angle in degrees, colours linear RGB)::
+
+    name = "cornell"                      # default: the file's stem
+    description = "..."                   # optional
+    effects = ["direct", "indirect"]      # required: subset of EFFECTS
+
+    [render]                              # optional
+    max_depth = 8                         # longest path with "indirect" (Mitsuba convention:
+                                          # 2 = direct light only); ignored without it
+    rr_depth = 5                          # Russian roulette from this depth
+    ao_radius = 1.0                       # with "ao": occlusion distance (required then)
+
+    [camera]
+    type = "pinhole"                      # or "thinlens" (needs aperture_radius, focus_distance)
+    origin = [0, 1, 4]
+    target = [0, 1, 0]
+    up = [0, 1, 0]                        # default [0, 1, 0]
+    fov = 40                              # horizontal field of view
+    aperture_radius = 0.05                # thinlens
+    focus_distance = 4.0                  # thinlens; default: |target - origin|
+
+    [materials.floor]                     # a named material; types and parameters below
+    type = "roughplastic"
+    diffuse = { checkerboard = { color0 = [0.2, 0.2, 0.2], color1 = [0.8, 0.8, 0.8], scale = 8 } }
+    roughness = 0.2
+
+    [[objects]]
+    shape = "sphere"                      # sphere, cube, cylinder, rectangle, disk, mesh
+    center = [0, 1, 0]                    # sphere: center + radius (or a transform)
+    radius = 0.5
+    material = "floor"                    # a name from [materials] or an inline table
+    emission = [10, 10, 10]               # optional: makes the object an area light
+
+    [[objects]]
+    shape = "cube"                        # unit shapes: cube [-1,1]³, rectangle/disk in the
+    transform = { translate = [0, 0.5, 0], rotate = [0, 30, 0], scale = [0.5, 0.5, 0.5] }
+                                          # z = 0 plane facing +z, cylinder radius 1 z in [0,1]
+    [[objects]]
+    shape = "mesh"
+    file = "meshes/bunny.obj"             # .obj or .ply, relative to the spec file
+    material = { type = "diffuse", reflectance = [0.7, 0.7, 0.7] }
+
+    [[lights]]
+    type = "point"                        # point, spot, constant, envmap, sun, sh
+    position = [0, 3, 0]
+    intensity = [10, 10, 10]
+
+Materials (``type`` and its parameters; ``<texture>`` is a colour ``[r, g, b]``, a scalar, or
+``{ checkerboard = {color0, color1, scale} }``, ``{ image = "file.png", scale = 1 }`` or
+``{ noise = {color0, color1, scale, seed} }`` — procedural value noise):
+
+=================  =========================================================================
+diffuse            reflectance = <texture>
+plastic            diffuse = <texture>, ior = 1.5 (smooth coating)
+roughplastic       diffuse = <texture>, roughness (GGX alpha, > 0), ior = 1.5
+conductor          conductor = "Au" (Mitsuba's names: Au, Ag, Cu, Al, ...) or eta/k = [r,g,b],
+                   specular = <texture> (tint, default 1)
+roughconductor     as conductor, plus roughness (> 0)
+dielectric         ior = 1.5 (smooth glass); roughness > 0 makes it rough glass
+=================  =========================================================================
+
+Glossy = roughplastic, roughconductor, rough dielectric; specular (delta) = plastic's coating,
+conductor, smooth dielectric.
+
+Lights (besides emissive objects):
+
+=========  ========================================================================
+point      position, intensity = [r, g, b]
+spot       position, target, intensity, cutoff = 20 (degrees), beam_width = cutoff * 0.75
+constant   radiance = [r, g, b] (uniform environment)
+envmap     file = "sky.exr" (lat-long, relative to the spec), scale = 1, or
+           procedural = "sky" (a built-in gradient sky), rotate = [0, y, 0]
+sun        direction = [x, y, z] (towards the sun), irradiance = [r, g, b] (on a surface
+           facing the sun), angular_diameter = 0.53 (degrees; small and bright: fireflies)
+sh         coefficients = 36 rows of [r, g, b] (real SH up to order 5, see
+           :mod:`mcdenoise.render.sh`), scale = 1
+=========  ========================================================================
+
+Effects (:data:`EFFECTS`): ``direct`` (light reaching a visible surface straight from a light),
+``indirect`` (light after more bounces), ``glossy`` (glossy materials are present and
+simulated), ``caustics`` (light through specular chains onto diffuse/glossy surfaces), ``dof``
+(thin-lens depth of field), ``ao`` (ambient occlusion instead of lighting). Whether a spec's
+effects and its content agree is checked by :func:`mcdenoise.render.effects.plan_effects`.
+
+Errors are :class:`SpecError` with the file and the key path, e.g.
+``cornell.toml: objects[2].material: unknown material 'gld' (known: floor, red, white)``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcdenoise.errors import McdenoiseError
+
+EFFECTS: tuple[str, ...] = ("direct", "indirect", "glossy", "caustics", "dof", "ao")
+SHAPES: tuple[str, ...] = ("sphere", "cube", "cylinder", "rectangle", "disk", "mesh")
+MATERIALS: tuple[str, ...] = (
+    "diffuse",
+    "plastic",
+    "roughplastic",
+    "conductor",
+    "roughconductor",
+    "dielectric",
+)
+LIGHTS: tuple[str, ...] = ("point", "spot", "constant", "envmap", "sun", "sh")
+TEXTURES: tuple[str, ...] = ("checkerboard", "image", "noise")
+#: Number of SH coefficients of order 5 ((5 + 1)²).
+SH_COEFFS = 36
+MESH_SUFFIXES = (".obj", ".ply")
+
+
+class SpecError(McdenoiseError, ValueError):
+    """A scene spec is malformed; the message names the file and the key."""
+
+
+Vec3 = tuple[float, float, float]
+
+
+# --- small typed pieces -------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Texture:
+    """A colour source: ``kind`` is ``constant``, ``checkerboard``, ``image`` or ``noise``.
+
+    ``color`` for constant; ``color0``/``color1``/``scale`` for checkerboard and noise (+``seed``
+    for noise); ``file`` (absolute after loading) and ``scale`` for image.
+    """
+
+    kind: str = "constant"
+    color: Vec3 = (0.5, 0.5, 0.5)
+    color0: Vec3 = (0.2, 0.2, 0.2)
+    color1: Vec3 = (0.8, 0.8, 0.8)
+    scale: float = 1.0
+    file: str | None = None
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Transform:
+    """Scale, then rotate (degrees about X, then Y, then Z), then translate."""
+
+    translate: Vec3 = (0.0, 0.0, 0.0)
+    rotate: Vec3 = (0.0, 0.0, 0.0)
+    scale: Vec3 = (1.0, 1.0, 1.0)
+
+    def matrix(self) -> list[list[float]]:
+        """The 4×4 row-major matrix ``T · Rz · Ry · Rx · S``."""
+        rx, ry, rz = (math.radians(a) for a in self.rotate)
+        cx, sx, cy, sy, cz, sz = (
+            math.cos(rx),
+            math.sin(rx),
+            math.cos(ry),
+            math.sin(ry),
+            math.cos(rz),
+            math.sin(rz),
+        )
+        r = [
+            [cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+            [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
+            [-sy, cy * sx, cy * cx],
+        ]
+        m = [[r[i][j] * self.scale[j] for j in range(3)] + [self.translate[i]] for i in range(3)]
+        return [*m, [0.0, 0.0, 0.0, 1.0]]
+
+
+@dataclass(frozen=True)
+class Camera:
+    type: str = "pinhole"
+    origin: Vec3 = (0.0, 1.0, 4.0)
+    target: Vec3 = (0.0, 1.0, 0.0)
+    up: Vec3 = (0.0, 1.0, 0.0)
+    fov: float = 40.0
+    aperture_radius: float | None = None
+    focus_distance: float | None = None
+
+
+@dataclass(frozen=True)
+class Material:
+    """A material; unused parameters keep their defaults (see the module table)."""
+
+    type: str = "diffuse"
+    reflectance: Texture = field(default_factory=Texture)  # diffuse
+    diffuse: Texture = field(default_factory=Texture)  # (rough)plastic
+    specular: Texture = field(default_factory=lambda: Texture(color=(1.0, 1.0, 1.0)))
+    roughness: float = 0.0
+    ior: float = 1.5
+    conductor: str | None = None
+    eta: Vec3 | None = None
+    k: Vec3 | None = None
+
+    @property
+    def glossy(self) -> bool:
+        """Has a glossy (rough, non-diffuse) lobe."""
+        return self.type in ("roughplastic", "roughconductor") or (
+            self.type == "dielectric" and self.roughness > 0
+        )
+
+    @property
+    def specular_lobe(self) -> bool:
+        """Has a delta (perfectly specular) lobe: the start of a caustic chain."""
+        return self.type in ("plastic", "conductor") or (
+            self.type == "dielectric" and self.roughness == 0
+        )
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    shape: str
+    material: Material
+    material_name: str | None = None
+    transform: Transform = field(default_factory=Transform)
+    center: Vec3 | None = None  # sphere
+    radius: float | None = None  # sphere
+    file: str | None = None  # mesh, absolute after loading
+    emission: Vec3 | None = None
+
+
+@dataclass(frozen=True)
+class Light:
+    """A light; ``params`` holds the type's parameters, already validated."""
+
+    type: str
+    params: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    max_depth: int = 8
+    rr_depth: int = 5
+    ao_radius: float | None = None
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A parsed, structurally valid scene spec (effects vs content: see ``effects.py``)."""
+
+    name: str
+    effects: tuple[str, ...]
+    camera: Camera
+    objects: tuple[SceneObject, ...]
+    lights: tuple[Light, ...] = ()
+    materials: Mapping[str, Material] = field(default_factory=dict)
+    render: RenderSettings = field(default_factory=RenderSettings)
+    description: str = ""
+    source: str | None = None  # the spec file, when loaded from one
+
+    def to_dict(self) -> dict[str, Any]:
+        """The spec in the schema users write (JSON-serialisable): ``parse_spec`` reads it back
+        to an equal spec, so a manifest that records it can be rendered again."""
+        d: dict[str, Any] = {"name": self.name, "effects": list(self.effects)}
+        if self.description:
+            d["description"] = self.description
+        r = self.render
+        d["render"] = {"max_depth": r.max_depth, "rr_depth": r.rr_depth}
+        if r.ao_radius is not None:
+            d["render"]["ao_radius"] = r.ao_radius
+        d["camera"] = _camera_dict(self.camera)
+        if self.materials:
+            d["materials"] = {n: _material_dict(m) for n, m in self.materials.items()}
+        d["objects"] = [_object_dict(o) for o in self.objects]
+        if self.lights:
+            d["lights"] = [{"type": lt.type, **_jsonable(dict(lt.params))} for lt in self.lights]
+        if self.source:
+            d["source"] = self.source
+        return d
+
+    @property
+    def emissive_objects(self) -> tuple[SceneObject, ...]:
+        return tuple(o for o in self.objects if o.emission is not None)
+
+    @property
+    def has_lights(self) -> bool:
+        return bool(self.lights or self.emissive_objects)
+
+
+def _texture_value(t: Texture) -> Any:
+    if t.kind == "constant":
+        return list(t.color)
+    if t.kind == "image":
+        return {"image": {"file": t.file, "scale": t.scale}}
+    return {
+        t.kind: {
+            "color0": list(t.color0),
+            "color1": list(t.color1),
+            "scale": t.scale,
+            "seed": t.seed,
+        }
+    }
+
+
+def _material_dict(m: Material) -> dict[str, Any]:
+    keys = _MATERIAL_KEYS[m.type]
+    d: dict[str, Any] = {"type": m.type}
+    for k in ("reflectance", "diffuse", "specular"):
+        if k in keys:
+            d[k] = _texture_value(getattr(m, k))
+    if "roughness" in keys and (m.type != "dielectric" or m.roughness > 0):
+        d["roughness"] = m.roughness
+    if "ior" in keys:
+        d["ior"] = m.ior
+    if m.type in ("conductor", "roughconductor"):
+        if m.eta is not None and m.k is not None:
+            d["eta"], d["k"] = list(m.eta), list(m.k)
+        else:
+            d["conductor"] = m.conductor
+    return d
+
+
+def _object_dict(o: SceneObject) -> dict[str, Any]:
+    d: dict[str, Any] = {"shape": o.shape}
+    d["material"] = o.material_name if o.material_name else _material_dict(o.material)
+    if o.shape == "sphere":
+        d["center"], d["radius"] = list(o.center or (0.0, 0.0, 0.0)), o.radius
+    elif o.transform != Transform():
+        t = o.transform
+        d["transform"] = {
+            "translate": list(t.translate),
+            "rotate": list(t.rotate),
+            "scale": list(t.scale),
+        }
+    if o.file:
+        d["file"] = o.file
+    if o.emission is not None:
+        d["emission"] = list(o.emission)
+    return d
+
+
+def _camera_dict(c: Camera) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "type": c.type,
+        "origin": list(c.origin),
+        "target": list(c.target),
+        "up": list(c.up),
+        "fov": c.fov,
+    }
+    if c.type == "thinlens":
+        d["aperture_radius"], d["focus_distance"] = c.aperture_radius, c.focus_distance
+    return d
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, tuple | list):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+# --- parsing ------------------------------------------------------------------------------
+
+
+class _Ctx:
+    """Where we are in the spec, for error messages."""
+
+    def __init__(self, source: str, base: Path | None) -> None:
+        self.source = source
+        self.base = base
+
+    def error(self, key: str, msg: str) -> SpecError:
+        where = f"{key}: " if key else ""
+        return SpecError(f"{self.source}: {where}{msg}")
+
+    def path(self, key: str, value: Any, suffixes: Sequence[str] | None = None) -> str:
+        if not isinstance(value, str) or not value:
+            raise self.error(key, f"must be a file name, got {value!r}")
+        p = Path(value)
+        if not p.is_absolute() and self.base is not None:
+            p = self.base / p
+        if not p.is_file():
+            raise self.error(key, f"file {value!r} not found (looked at {p})")
+        if suffixes and p.suffix.lower() not in suffixes:
+            raise self.error(key, f"{value!r} must be one of {', '.join(suffixes)}")
+        return str(p.resolve())
+
+
+def _table(ctx: _Ctx, key: str, value: Any) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ctx.error(key, f"must be a table, got {type(value).__name__}")
+    return value
+
+
+def _check_keys(ctx: _Ctx, key: str, table: Mapping[str, Any], allowed: Sequence[str]) -> None:
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise ctx.error(key, f"unknown key(s) {', '.join(unknown)} (allowed: {', '.join(allowed)})")
+
+
+def _num(
+    ctx: _Ctx,
+    key: str,
+    value: Any,
+    *,
+    lo: float | None = None,
+    lo_open: bool = False,
+    hi: float | None = None,
+) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ctx.error(key, f"must be a finite number, got {value!r}")
+    v = float(value)
+    if lo is not None and (v <= lo if lo_open else v < lo):
+        raise ctx.error(key, f"must be {'>' if lo_open else '>='} {lo:g}, got {v:g}")
+    if hi is not None and v > hi:
+        raise ctx.error(key, f"must be <= {hi:g}, got {v:g}")
+    return v
+
+
+def _int(ctx: _Ctx, key: str, value: Any, *, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+        raise ctx.error(key, f"must be an integer >= {lo}, got {value!r}")
+    return int(value)
+
+
+def _vec3(ctx: _Ctx, key: str, value: Any, *, nonneg: bool = False) -> Vec3:
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        value = [value] * 3
+    if not isinstance(value, Sequence) or isinstance(value, str) or len(value) != 3:
+        raise ctx.error(key, f"must be [x, y, z] (3 numbers), got {value!r}")
+    out = tuple(
+        _num(ctx, f"{key}[{i}]", v, lo=0.0 if nonneg else None) for i, v in enumerate(value)
+    )
+    return out  # type: ignore[return-value]
+
+
+def _texture(ctx: _Ctx, key: str, value: Any) -> Texture:
+    if isinstance(value, int | float | Sequence) and not isinstance(value, str | Mapping):
+        return Texture(kind="constant", color=_vec3(ctx, key, value, nonneg=True))
+    t = _table(ctx, key, value)
+    if len(t) != 1 or next(iter(t)) not in TEXTURES:
+        raise ctx.error(
+            key,
+            f"a texture is [r, g, b] or one of {{{', '.join(TEXTURES)} = {{...}}}}, got {dict(t)!r}",
+        )
+    kind, params = next(iter(t.items()))
+    k = f"{key}.{kind}"
+    p = _table(ctx, k, params)
+    if kind == "image":
+        _check_keys(ctx, k, p, ("file", "scale"))
+        return Texture(
+            kind="image",
+            file=ctx.path(f"{k}.file", p.get("file"), (".png", ".jpg", ".jpeg", ".exr")),
+            scale=_num(ctx, f"{k}.scale", p.get("scale", 1.0), lo=0, lo_open=True),
+        )
+    _check_keys(ctx, k, p, ("color0", "color1", "scale", "seed"))
+    return Texture(
+        kind=kind,
+        color0=_vec3(ctx, f"{k}.color0", p.get("color0", (0.2, 0.2, 0.2)), nonneg=True),
+        color1=_vec3(ctx, f"{k}.color1", p.get("color1", (0.8, 0.8, 0.8)), nonneg=True),
+        scale=_num(ctx, f"{k}.scale", p.get("scale", 8.0), lo=0, lo_open=True),
+        seed=_int(ctx, f"{k}.seed", p.get("seed", 0), lo=0),
+    )
+
+
+_MATERIAL_KEYS = {
+    "diffuse": ("type", "reflectance"),
+    "plastic": ("type", "diffuse", "ior"),
+    "roughplastic": ("type", "diffuse", "roughness", "ior"),
+    "conductor": ("type", "conductor", "eta", "k", "specular"),
+    "roughconductor": ("type", "conductor", "eta", "k", "specular", "roughness"),
+    "dielectric": ("type", "ior", "roughness"),
+}
+
+
+def _material(ctx: _Ctx, key: str, value: Any) -> Material:
+    m = _table(ctx, key, value)
+    typ = m.get("type")
+    if typ not in MATERIALS:
+        raise ctx.error(f"{key}.type", f"must be one of {', '.join(MATERIALS)}, got {typ!r}")
+    _check_keys(ctx, key, m, _MATERIAL_KEYS[typ])
+    kw: dict[str, Any] = {"type": typ}
+    if "reflectance" in m:
+        kw["reflectance"] = _texture(ctx, f"{key}.reflectance", m["reflectance"])
+    if "diffuse" in m:
+        kw["diffuse"] = _texture(ctx, f"{key}.diffuse", m["diffuse"])
+    if "specular" in m:
+        kw["specular"] = _texture(ctx, f"{key}.specular", m["specular"])
+    if typ in ("roughplastic", "roughconductor"):
+        kw["roughness"] = _num(
+            ctx, f"{key}.roughness", m.get("roughness", 0.1), lo=0, lo_open=True, hi=1.0
+        )
+    if typ == "dielectric" and "roughness" in m:
+        kw["roughness"] = _num(ctx, f"{key}.roughness", m["roughness"], lo=0.0, hi=1.0)
+    if "ior" in m:
+        kw["ior"] = _num(ctx, f"{key}.ior", m["ior"], lo=1.0, lo_open=True, hi=4.0)
+    if typ in ("conductor", "roughconductor"):
+        if "conductor" in m and ("eta" in m or "k" in m):
+            raise ctx.error(key, 'give either conductor = "Au" or eta and k, not both')
+        if ("eta" in m) != ("k" in m):
+            raise ctx.error(key, "eta and k go together")
+        if "eta" in m:
+            kw["eta"] = _vec3(ctx, f"{key}.eta", m["eta"], nonneg=True)
+            kw["k"] = _vec3(ctx, f"{key}.k", m["k"], nonneg=True)
+        else:
+            name = m.get("conductor", "Al")
+            if not isinstance(name, str) or not name:
+                raise ctx.error(
+                    f"{key}.conductor", f"must be a material name like 'Au', got {name!r}"
+                )
+            kw["conductor"] = name
+    return Material(**kw)
+
+
+_SHAPE_KEYS = ("shape", "material", "transform", "center", "radius", "file", "emission")
+
+
+def _transform(ctx: _Ctx, key: str, value: Any) -> Transform:
+    t = _table(ctx, key, value)
+    _check_keys(ctx, key, t, ("translate", "rotate", "scale"))
+    scale = _vec3(ctx, f"{key}.scale", t.get("scale", 1.0))
+    if any(s == 0 for s in scale):
+        raise ctx.error(f"{key}.scale", "must not be 0 on any axis")
+    return Transform(
+        translate=_vec3(ctx, f"{key}.translate", t.get("translate", 0.0)),
+        rotate=_vec3(ctx, f"{key}.rotate", t.get("rotate", 0.0)),
+        scale=scale,
+    )
+
+
+def _object(ctx: _Ctx, key: str, value: Any, materials: Mapping[str, Material]) -> SceneObject:
+    o = _table(ctx, key, value)
+    _check_keys(ctx, key, o, _SHAPE_KEYS)
+    shape = o.get("shape")
+    if shape not in SHAPES:
+        raise ctx.error(f"{key}.shape", f"must be one of {', '.join(SHAPES)}, got {shape!r}")
+    mat_value = o.get("material", {"type": "diffuse", "reflectance": [0.5, 0.5, 0.5]})
+    mat_name = None
+    if isinstance(mat_value, str):
+        if mat_value not in materials:
+            known = ", ".join(sorted(materials)) or "none defined"
+            raise ctx.error(f"{key}.material", f"unknown material {mat_value!r} (known: {known})")
+        mat, mat_name = materials[mat_value], mat_value
+    else:
+        mat = _material(ctx, f"{key}.material", mat_value)
+    kw: dict[str, Any] = {"shape": shape, "material": mat, "material_name": mat_name}
+    if "transform" in o:
+        kw["transform"] = _transform(ctx, f"{key}.transform", o["transform"])
+    if shape == "sphere":
+        if ("center" in o or "radius" in o) and "transform" in o:
+            raise ctx.error(key, "a sphere takes center/radius or a transform, not both")
+        kw["center"] = _vec3(ctx, f"{key}.center", o.get("center", 0.0))
+        kw["radius"] = _num(ctx, f"{key}.radius", o.get("radius", 1.0), lo=0, lo_open=True)
+    elif "center" in o or "radius" in o:
+        raise ctx.error(key, f"center/radius are for spheres; place a {shape} with a transform")
+    if shape == "mesh":
+        kw["file"] = ctx.path(f"{key}.file", o.get("file"), MESH_SUFFIXES)
+    elif "file" in o:
+        raise ctx.error(f"{key}.file", "only meshes take a file")
+    if "emission" in o:
+        em = _vec3(ctx, f"{key}.emission", o["emission"], nonneg=True)
+        if max(em) <= 0:
+            raise ctx.error(f"{key}.emission", "must be positive (omit it for a non-emitter)")
+        kw["emission"] = em
+    return SceneObject(**kw)
+
+
+_LIGHT_KEYS = {
+    "point": ("type", "position", "intensity"),
+    "spot": ("type", "position", "target", "intensity", "cutoff", "beam_width"),
+    "constant": ("type", "radiance"),
+    "envmap": ("type", "file", "procedural", "scale", "rotate"),
+    "sun": ("type", "direction", "irradiance", "angular_diameter"),
+    "sh": ("type", "coefficients", "scale"),
+}
+
+
+def _light(ctx: _Ctx, key: str, value: Any) -> Light:
+    lt = _table(ctx, key, value)
+    typ = lt.get("type")
+    if typ not in LIGHTS:
+        raise ctx.error(f"{key}.type", f"must be one of {', '.join(LIGHTS)}, got {typ!r}")
+    _check_keys(ctx, key, lt, _LIGHT_KEYS[typ])
+    p: dict[str, Any] = {}
+    if typ in ("point", "spot"):
+        p["position"] = _vec3(ctx, f"{key}.position", lt.get("position"))
+        p["intensity"] = _vec3(ctx, f"{key}.intensity", lt.get("intensity"), nonneg=True)
+    if typ == "spot":
+        p["target"] = _vec3(ctx, f"{key}.target", lt.get("target"))
+        p["cutoff"] = _num(ctx, f"{key}.cutoff", lt.get("cutoff", 20.0), lo=0, lo_open=True, hi=90)
+        p["beam_width"] = _num(
+            ctx,
+            f"{key}.beam_width",
+            lt.get("beam_width", 0.75 * p["cutoff"]),
+            lo=0,
+            lo_open=True,
+            hi=p["cutoff"],
+        )
+    if typ == "constant":
+        p["radiance"] = _vec3(ctx, f"{key}.radiance", lt.get("radiance"), nonneg=True)
+    if typ == "envmap":
+        if ("file" in lt) == ("procedural" in lt):
+            raise ctx.error(key, "an envmap takes exactly one of file or procedural")
+        if "file" in lt:
+            p["file"] = ctx.path(f"{key}.file", lt["file"], (".exr", ".hdr", ".png", ".jpg"))
+        elif lt["procedural"] != "sky":
+            raise ctx.error(f"{key}.procedural", f"must be 'sky', got {lt['procedural']!r}")
+        else:
+            p["procedural"] = "sky"
+        p["scale"] = _num(ctx, f"{key}.scale", lt.get("scale", 1.0), lo=0, lo_open=True)
+        p["rotate"] = _vec3(ctx, f"{key}.rotate", lt.get("rotate", 0.0))
+    if typ == "sun":
+        d = _vec3(ctx, f"{key}.direction", lt.get("direction"))
+        n = math.sqrt(sum(c * c for c in d))
+        if n == 0:
+            raise ctx.error(f"{key}.direction", "must not be zero")
+        p["direction"] = tuple(c / n for c in d)
+        p["irradiance"] = _vec3(ctx, f"{key}.irradiance", lt.get("irradiance"), nonneg=True)
+        p["angular_diameter"] = _num(
+            ctx, f"{key}.angular_diameter", lt.get("angular_diameter", 0.53), lo=0.0, hi=30.0
+        )
+    if typ == "sh":
+        co = lt.get("coefficients")
+        if not isinstance(co, Sequence) or len(co) != SH_COEFFS:
+            got = len(co) if isinstance(co, Sequence) else co
+            raise ctx.error(
+                f"{key}.coefficients",
+                f"must be {SH_COEFFS} rows of [r, g, b] (order 5), got {got!r}",
+            )
+        p["coefficients"] = tuple(
+            _vec3(ctx, f"{key}.coefficients[{i}]", c) for i, c in enumerate(co)
+        )
+        p["scale"] = _num(ctx, f"{key}.scale", lt.get("scale", 1.0), lo=0, lo_open=True)
+    return Light(type=typ, params=p)
+
+
+def _camera(ctx: _Ctx, value: Any) -> Camera:
+    c = _table(ctx, "camera", value)
+    _check_keys(
+        ctx,
+        "camera",
+        c,
+        ("type", "origin", "target", "up", "fov", "aperture_radius", "focus_distance"),
+    )
+    typ = c.get("type", "pinhole")
+    if typ not in ("pinhole", "thinlens"):
+        raise ctx.error("camera.type", f"must be pinhole or thinlens, got {typ!r}")
+    origin = _vec3(ctx, "camera.origin", c.get("origin", (0.0, 1.0, 4.0)))
+    target = _vec3(ctx, "camera.target", c.get("target", (0.0, 1.0, 0.0)))
+    if origin == target:
+        raise ctx.error("camera", "origin and target must differ")
+    kw: dict[str, Any] = {
+        "type": typ,
+        "origin": origin,
+        "target": target,
+        "up": _vec3(ctx, "camera.up", c.get("up", (0.0, 1.0, 0.0))),
+        "fov": _num(ctx, "camera.fov", c.get("fov", 40.0), lo=0, lo_open=True, hi=179),
+    }
+    if typ == "pinhole" and ("aperture_radius" in c or "focus_distance" in c):
+        raise ctx.error("camera", 'aperture_radius/focus_distance need type = "thinlens"')
+    if typ == "thinlens":
+        if "aperture_radius" not in c:
+            raise ctx.error("camera.aperture_radius", "a thinlens camera needs an aperture radius")
+        kw["aperture_radius"] = _num(
+            ctx, "camera.aperture_radius", c["aperture_radius"], lo=0, lo_open=True
+        )
+        dist = math.dist(origin, target)
+        kw["focus_distance"] = _num(
+            ctx, "camera.focus_distance", c.get("focus_distance", dist), lo=0, lo_open=True
+        )
+    return Camera(**kw)
+
+
+_TOP_KEYS = ("name", "description", "effects", "render", "camera", "materials", "objects", "lights")
+
+
+def parse_spec(
+    data: Mapping[str, Any], *, source: str = "<spec>", base: str | os.PathLike[str] | None = None
+) -> SceneSpec:
+    """Validate a spec given as a mapping (a parsed TOML file, or :meth:`SceneSpec.to_dict`).
+
+    ``base`` is the folder relative file names (meshes, images) are resolved against.
+    """
+    ctx = _Ctx(source, Path(base) if base is not None else None)
+    top = _table(ctx, "", data)
+    _check_keys(ctx, "", top, (*_TOP_KEYS, "source"))
+    name = top.get("name") or (Path(source).stem if source != "<spec>" else None)
+    if not isinstance(name, str) or not name:
+        raise ctx.error("name", f"must be a non-empty string, got {name!r}")
+    effects = top.get("effects")
+    if not isinstance(effects, Sequence) or isinstance(effects, str) or not effects:
+        raise ctx.error("effects", f"must be a non-empty list from {', '.join(EFFECTS)}")
+    bad = [e for e in effects if e not in EFFECTS]
+    if bad:
+        raise ctx.error(
+            "effects",
+            f"unknown effect(s) {', '.join(map(repr, bad))} (known: {', '.join(EFFECTS)})",
+        )
+    if len(set(effects)) != len(effects):
+        raise ctx.error("effects", "lists an effect twice")
+    r = _table(ctx, "render", top.get("render", {}))
+    _check_keys(ctx, "render", r, ("max_depth", "rr_depth", "ao_radius"))
+    render = RenderSettings(
+        max_depth=_int(ctx, "render.max_depth", r.get("max_depth", 8), lo=2),
+        rr_depth=_int(ctx, "render.rr_depth", r.get("rr_depth", 5), lo=1),
+        ao_radius=(
+            _num(ctx, "render.ao_radius", r["ao_radius"], lo=0, lo_open=True)
+            if "ao_radius" in r
+            else None
+        ),
+    )
+    mats_t = _table(ctx, "materials", top.get("materials", {}))
+    materials = {str(n): _material(ctx, f"materials.{n}", m) for n, m in mats_t.items()}
+    objs = top.get("objects", [])
+    if not isinstance(objs, Sequence) or isinstance(objs, str) or not objs:
+        raise ctx.error("objects", "must be a non-empty list of [[objects]] tables")
+    objects = tuple(_object(ctx, f"objects[{i}]", o, materials) for i, o in enumerate(objs))
+    lts = top.get("lights", [])
+    if not isinstance(lts, Sequence) or isinstance(lts, str):
+        raise ctx.error("lights", "must be a list of [[lights]] tables")
+    lights = tuple(_light(ctx, f"lights[{i}]", lt) for i, lt in enumerate(lts))
+    desc = top.get("description", "")
+    if not isinstance(desc, str):
+        raise ctx.error("description", "must be a string")
+    return SceneSpec(
+        name=name,
+        effects=tuple(effects),
+        camera=_camera(ctx, top.get("camera", {})),
+        objects=objects,
+        lights=lights,
+        materials=materials,
+        render=render,
+        description=desc,
+        source=top.get("source") if source == "<spec>" else source,
+    )
+
+
+def load_spec(path: str | os.PathLike[str]) -> SceneSpec:
+    """Read and validate a scene spec (``.toml``, or ``.json`` as written by
+    :meth:`SceneSpec.to_dict`); file names in it are relative to its folder."""
+    p = Path(path)
+    if not p.is_file():
+        raise SpecError(f"{p}: scene spec not found" if not p.exists() else f"{p}: not a file")
+    try:
+        text = p.read_text(encoding="utf-8")
+        data = json.loads(text) if p.suffix.lower() == ".json" else tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as err:
+        kind = "JSON" if p.suffix.lower() == ".json" else "TOML"
+        raise SpecError(f"{p}: not valid {kind}: {' '.join(str(err).split())}") from None
+    return parse_spec(data, source=str(p), base=p.parent)
