@@ -1,8 +1,9 @@
 """EXR feature buffers: reading, writing, renderer profiles.
 
 Public API: :func:`load_buffers` / :func:`save_buffers` (FeatureBuffers <-> EXR through a
-renderer profile), :func:`describe` (``mcdenoise info``), the low-level :func:`read_exr`,
-:func:`write_exr`, :func:`probe_exr`, and the profile helpers :func:`detect_profile`,
+renderer profile), :func:`save_buffers_parts` (several images as the named parts of one
+multi-part EXR), :func:`describe` (``mcdenoise info``), the low-level :func:`read_exr`,
+:func:`write_exr`, :func:`write_exr_parts`, :func:`probe_exr`, and the profile helpers :func:`detect_profile`,
 :func:`get_profile`, :func:`load_mapping`.
 
 Names are imported lazily (PEP 562), so ``import mcdenoise.io.exr`` does not pay for
@@ -26,14 +27,17 @@ _EXPORTS: dict[str, str] = {
     "load_buffers": "mcdenoise.io.buffer_files",
     "read_buffers": "mcdenoise.io.buffer_files",
     "save_buffers": "mcdenoise.io.buffer_files",
+    "save_buffers_parts": "mcdenoise.io.buffer_files",
     # low-level EXR
     "ExrChannel": "mcdenoise.io.exr",
     "ExrImage": "mcdenoise.io.exr",
     "ExrPart": "mcdenoise.io.exr",
+    "ExrPartData": "mcdenoise.io.exr",
     "WriteReport": "mcdenoise.io.exr",
     "probe_exr": "mcdenoise.io.exr",
     "read_exr": "mcdenoise.io.exr",
     "write_exr": "mcdenoise.io.exr",
+    "write_exr_parts": "mcdenoise.io.exr",
     # info
     "BufferInfo": "mcdenoise.io.info",
     "FileInfo": "mcdenoise.io.info",
@@ -61,6 +65,7 @@ __all__ = [
     "ExrChannel",
     "ExrImage",
     "ExrPart",
+    "ExrPartData",
     "FeatureBuffers",
     "FileInfo",
     "IncompleteFeatureError",
@@ -80,7 +85,9 @@ __all__ = [
     "read_exr",
     "sanitize",
     "save_buffers",
+    "save_buffers_parts",
     "write_exr",
+    "write_exr_parts",
 ]
 
 
@@ -98,7 +105,13 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
-    from mcdenoise.io.buffer_files import LoadResult, load_buffers, read_buffers, save_buffers
+    from mcdenoise.io.buffer_files import (
+        LoadResult,
+        load_buffers,
+        read_buffers,
+        save_buffers,
+        save_buffers_parts,
+    )
     from mcdenoise.io.buffers import (
         BUFFER_NAMES,
         FEATURES,
@@ -110,10 +123,12 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
         ExrChannel,
         ExrImage,
         ExrPart,
+        ExrPartData,
         WriteReport,
         probe_exr,
         read_exr,
         write_exr,
+        write_exr_parts,
     )
     from mcdenoise.io.info import BufferInfo, FileInfo, describe
     from mcdenoise.io.profiles import (

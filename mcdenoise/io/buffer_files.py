@@ -11,7 +11,10 @@ would come from parts with different data windows is refused (never broadcast or
 
 Multi-part files: with ``part=None`` channels are looked up by name in every part (a name
 present in two parts must be disambiguated with ``part=``); ``part="name"`` or an index
-restricts the search to that part.
+restricts the search to that part. Exception: a file whose parts are *each* a complete image in
+the ``mcdenoise`` layout (every part carries ``mcdenoise:layout``, as written by
+:func:`save_buffers_parts`, e.g. the spp levels ``spp4``, ``spp16``, ... of ``mcdenoise
+render``) defaults to its first part.
 """
 
 from __future__ import annotations
@@ -26,7 +29,16 @@ import torch
 
 from mcdenoise.errors import ExrError, InputError
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.io.exr import ExrPart, WriteReport, probe_exr, read_exr, select_part, write_exr
+from mcdenoise.io.exr import (
+    ExrPart,
+    ExrPartData,
+    WriteReport,
+    probe_exr,
+    read_exr,
+    select_part,
+    write_exr,
+    write_exr_parts,
+)
 from mcdenoise.io.profiles import (
     LAYOUT_ATTR,
     LAYOUT_VERSION,
@@ -83,6 +95,8 @@ def read_buffers(
     """
     src = str(path)
     parts = probe_exr(path)
+    if part is None and len(parts) > 1 and all(LAYOUT_ATTR in p.attributes for p in parts):
+        part = 0  # every part is a complete mcdenoise image (spp levels): the first one
     searched = [select_part(parts, part, src)] if part is not None else parts
     owner: dict[str, int] = {}
     duplicated: dict[str, list[int]] = {}
@@ -211,6 +225,84 @@ def save_buffers(
     The header gets ``mcdenoise:layout`` and, when known, ``mcdenoise:spp``. The data and
     display windows of ``buffers`` are written as they are (their size must match).
     """
+    part = _canonical_part(path, buffers, half=half, attributes=attributes)
+    return write_exr(
+        path,
+        part.channels,
+        pixel_type=part.pixel_type,
+        compression=compression,
+        attributes=part.attributes,
+        data_window=part.data_window,
+        display_window=part.display_window,
+    )
+
+
+def save_buffers_parts(
+    path: str | os.PathLike[str],
+    parts: Mapping[str, FeatureBuffers],
+    *,
+    half: bool | Iterable[str] = False,
+    compression: str = "zip",
+    attributes: Mapping[str, str | int | float] | None = None,
+    part_attributes: Mapping[str, Mapping[str, str | int | float]] | None = None,
+) -> list[WriteReport]:
+    """Write several images of the same size as one multi-part EXR, one canonical part each.
+
+    Each part is exactly what :func:`save_buffers` would write for its FeatureBuffers (with
+    ``mcdenoise:layout`` and ``mcdenoise:spp``), plus a part ``name``. :func:`load_buffers`
+    reads one with ``part="name"``; without ``part`` it reads the first.
+
+    Args:
+        path: destination EXR (replaced atomically).
+        parts: part name -> buffers, in file order (e.g. ``{"spp4": fb4, "spp16": fb16}``).
+        half: as in :func:`save_buffers`, applied to every part (names absent from a part
+            are ignored for that part).
+        compression: EXR compression of every part.
+        attributes: header attributes given to every part.
+        part_attributes: part name -> attributes of that part only (override ``attributes``).
+
+    Returns:
+        One :class:`~mcdenoise.io.exr.WriteReport` per part, in order.
+
+    Raises:
+        InputError: no parts, an empty part, parts of different display windows, unknown
+            names in ``part_attributes``.
+        ExrError: the file cannot be written.
+    """
+    if not parts:
+        raise InputError(f"{path}: no parts to save")
+    extra = dict(part_attributes or {})
+    unknown = sorted(set(extra) - set(parts))
+    if unknown:
+        raise InputError(f"{path}: part_attributes names unknown part(s) {', '.join(unknown)}")
+    if isinstance(half, str):
+        raise InputError(f"half must be a bool or a list of buffer names, got {half!r}")
+    half_names = half if isinstance(half, bool) else set(half)
+    data: list[ExrPartData] = []
+    for name, buffers in parts.items():
+        attrs = {**(attributes or {}), **extra.get(name, {})}
+        part_half = (
+            half_names if isinstance(half_names, bool) else half_names & set(buffers.names())
+        )
+        try:
+            data.append(
+                _canonical_part(path, buffers, half=part_half, attributes=attrs, part_name=name)
+            )
+        except InputError as err:
+            msg = str(err).removeprefix(f"{path}: ")
+            raise InputError(f"{path}: part {name!r}: {msg}") from None
+    return write_exr_parts(path, data, compression=compression)
+
+
+def _canonical_part(
+    path: str | os.PathLike[str],
+    buffers: FeatureBuffers,
+    *,
+    half: bool | Iterable[str],
+    attributes: Mapping[str, str | int | float] | None,
+    part_name: str = "",
+) -> ExrPartData:
+    """The canonical channels, pixel types, attributes and windows of ``buffers``."""
     names = buffers.names()
     if not names:
         raise InputError(f"{path}: no buffers to save")
@@ -257,11 +349,10 @@ def save_buffers(
             f"but the buffers are {w}x{h}; update data_window (or set it to None)"
         )
     vw = buffers.display_window or dw
-    return write_exr(
-        path,
-        channels,
+    return ExrPartData(
+        name=part_name,
+        channels=channels,
         pixel_type=types,
-        compression=compression,
         attributes=attrs,
         data_window=dw,
         display_window=vw,

@@ -22,7 +22,8 @@ Safety
       unknown part or channel, unwritable destination) raises :class:`~mcdenoise.errors.ExrError`
       with a one-line message naming the file. A truncated or corrupt file never yields partial
       arrays: OpenImageIO's error state is checked after every read and the data discarded.
-    * :func:`write_exr` writes atomically (temporary file in the target folder, then
+    * :func:`write_exr` (one part) and :func:`write_exr_parts` (several named parts, e.g. the
+      spp levels of one render) write atomically (temporary file in the target folder, then
       ``os.replace``), so a crash leaves the old file or the complete new one.
     * float32 channels written with a lossless compression (``none``, ``rle``, ``zips``,
       ``zip``, ``piz``, ``b44``, ``b44a``) read back bit-exact; ``pxr24`` rounds float32 to
@@ -606,6 +607,141 @@ def write_exr(
         ExrError: the file cannot be written (folder missing, permission, disk full).
     """
     p = Path(path)
+    prepared = _prepare_part(
+        p,
+        channels,
+        pixel_type=pixel_type,
+        compression=compression,
+        attributes=attributes,
+        data_window=data_window,
+        display_window=display_window,
+        tile_size=tile_size,
+        line_order=line_order,
+    )
+    if p.is_dir():
+        raise ExrError(f"{p}: is a folder; cannot write an EXR file there")
+    _write_prepared(p, [prepared])
+    return WriteReport(str(p), dict(prepared.types), prepared.compression, prepared.clamped)
+
+
+@dataclass
+class ExrPartData:
+    """One part to write with :func:`write_exr_parts`.
+
+    Attributes:
+        name: the part's name (non-empty, unique in the file); readers select parts by it.
+        channels: channel name -> array ``(H, W)`` (see :func:`write_exr`).
+        pixel_type: ``"float"``/``"half"`` for every channel, or a mapping channel -> type.
+        attributes: extra header attributes of this part (str, int or float values).
+        data_window: ``(xmin, ymin, xmax, ymax)`` inclusive; default ``(0, 0, W-1, H-1)``.
+        display_window: default: the data window. Every part of a file must share it
+            (an OpenEXR rule for multi-part files).
+    """
+
+    name: str
+    channels: Mapping[str, np.ndarray]
+    pixel_type: str | Mapping[str, str] = "float"
+    attributes: Mapping[str, str | int | float] | None = None
+    data_window: Iterable[int] | None = None
+    display_window: Iterable[int] | None = None
+
+
+def write_exr_parts(
+    path: str | os.PathLike[str],
+    parts: Sequence[ExrPartData],
+    *,
+    compression: str = "zip",
+) -> list[WriteReport]:
+    """Write a multi-part EXR file atomically, one :class:`ExrPartData` per part, in order.
+
+    Each part is prepared exactly like a :func:`write_exr` file (same checks, half clamping,
+    deterministic bytes) and gets a ``name`` attribute; :func:`read_exr` and
+    :func:`mcdenoise.io.load_buffers` select a part by that name (``part="spp16"``) or index.
+    A single part gives a valid single-part file that still carries its name.
+
+    Args:
+        path: destination (replaced atomically if it exists).
+        parts: the parts; names must be non-empty and unique, display windows equal.
+        compression: one of :data:`COMPRESSIONS`, used for every part.
+
+    Returns:
+        One :class:`WriteReport` per part (``path`` is the file's), in order.
+
+    Raises:
+        InputError: no parts, bad or duplicate names, different display windows, or any
+            argument :func:`write_exr` would refuse (the message names the part).
+        ExrError: the file cannot be written.
+    """
+    p = Path(path)
+    if isinstance(parts, ExrPartData) or not parts:
+        raise InputError(f"{p}: write_exr_parts needs a non-empty sequence of ExrPartData")
+    names: list[str] = []
+    prepared: list[_Prepared] = []
+    for k, part in enumerate(parts):
+        if not isinstance(part, ExrPartData):
+            raise InputError(f"{p}: part {k} must be an ExrPartData, got {type(part).__name__}")
+        if not isinstance(part.name, str) or not part.name.strip():
+            raise InputError(f"{p}: part {k} needs a non-empty name, got {part.name!r}")
+        if part.name in names:
+            raise InputError(f"{p}: part name {part.name!r} is used twice")
+        if part.attributes and "name" in part.attributes:
+            raise InputError(f"{p}: part {part.name!r}: set the name with ExrPartData.name")
+        names.append(part.name)
+        try:
+            prep = _prepare_part(
+                p,
+                part.channels,
+                pixel_type=part.pixel_type,
+                compression=compression,
+                attributes=part.attributes,
+                data_window=part.data_window,
+                display_window=part.display_window,
+                tile_size=None,
+                line_order="increasing",
+            )
+        except InputError as err:
+            msg = str(err).removeprefix(f"{p}: ")
+            raise InputError(f"{p}: part {part.name!r}: {msg}") from None
+        prep.spec.attribute("name", part.name)
+        prepared.append(prep)
+    first = prepared[0].display_window
+    for name, prep in zip(names, prepared):
+        if prep.display_window != first:
+            raise InputError(
+                f"{p}: part {name!r} has display window {prep.display_window} but part "
+                f"{names[0]!r} has {first}; the parts of a file must share it"
+            )
+    if p.is_dir():
+        raise ExrError(f"{p}: is a folder; cannot write an EXR file there")
+    _write_prepared(p, prepared)
+    return [WriteReport(str(p), dict(pr.types), pr.compression, pr.clamped) for pr in prepared]
+
+
+@dataclass
+class _Prepared:
+    """A validated part: its OpenImageIO spec and float32 pixels ``(H, W, C)``."""
+
+    spec: Any
+    pixels: np.ndarray
+    types: dict[str, str]
+    compression: str
+    clamped: dict[str, int]
+    display_window: Window
+
+
+def _prepare_part(
+    p: Path,
+    channels: Mapping[str, np.ndarray],
+    *,
+    pixel_type: str | Mapping[str, str],
+    compression: str,
+    attributes: Mapping[str, str | int | float] | None,
+    data_window: Iterable[int] | None,
+    display_window: Iterable[int] | None,
+    tile_size: tuple[int, int] | None,
+    line_order: str,
+) -> _Prepared:
+    """Validate the arguments of one part and build its spec and pixels (no file access)."""
     if not channels:
         raise InputError(f"{p}: nothing to write (no channels)")
     names = list(channels)
@@ -708,8 +844,12 @@ def write_exr(
             raise InputError(f"{p}: attribute {key!r} does not fit a 32-bit int: {value}")
         spec.attribute(key, value)
 
-    if p.is_dir():
-        raise ExrError(f"{p}: is a folder; cannot write an EXR file there")
+    return _Prepared(spec, pixels, dict(types), comp, clamped, vw)
+
+
+def _write_prepared(p: Path, prepared: Sequence[_Prepared]) -> None:
+    """Write the prepared parts to ``p`` atomically (one part: a plain single-part file)."""
+    oiio = _oiio()
     try:
         with atomic_path(p) as tmp:
             out = oiio.ImageOutput.create("openexr")
@@ -717,10 +857,20 @@ def write_exr(
                 raise ExrError(f"{p}: OpenImageIO has no EXR writer: {_error_text(oiio)}")
             closed = False
             try:
-                if not out.open(str(tmp), spec):
+                specs = [pr.spec for pr in prepared]
+                opened = (
+                    out.open(str(tmp), specs) if len(specs) > 1 else out.open(str(tmp), specs[0])
+                )
+                if not opened:
                     raise ExrError(f"{p}: cannot write: {_error_text(out)}")
-                ok = out.write_image(pixels)
-                msg = "" if ok else _error_text(out)
+                ok, msg = True, ""
+                for k, pr in enumerate(prepared):
+                    if k and not out.open(str(tmp), pr.spec, "AppendSubimage"):
+                        ok, msg = False, _error_text(out)
+                        break
+                    if not out.write_image(pr.pixels):
+                        ok, msg = False, _error_text(out)
+                        break
                 closed = True
                 if not out.close() or not ok:
                     raise ExrError(f"{p}: cannot write: {msg or _error_text(out)}")
@@ -733,4 +883,3 @@ def write_exr(
         raise ExrError(f"{p}: cannot write ({e.strerror or e})") from None
     finally:
         _clear_global_error()
-    return WriteReport(str(p), dict(types), comp, clamped)
