@@ -11,7 +11,7 @@ BIN    := $(VENV)/bin
 TORCH  ?= torch==2.13.0
 STAMP  := $(VENV)/.mcdenoise-installed
 
-.PHONY: install system-deps test test-all lint format bench demo samples clean
+.PHONY: install system-deps test test-all lint format bench demo samples data clean
 
 install: $(STAMP)
 
@@ -59,6 +59,16 @@ demo: install
 # Re-render the shipped sample data (needs the 'render' extra: Mitsuba 3).
 samples: install system-deps
 	$(BIN)/python data/make_samples.py --out data/samples
+
+# A small training set (gitignored): the curated specs in data/scenes plus DATA_RANDOM
+# procedural scenes, 128x128, noisy 4/16/64 spp, 1024 spp references (mcdenoise render;
+# re-running skips finished images). Size and time: README, "Rendering data sets".
+DATA_OUT    ?= data/generated/train
+DATA_RANDOM ?= 12
+DATA_SEED   ?= 0
+data: install system-deps
+	$(BIN)/mcdenoise render data/scenes --random $(DATA_RANDOM) --seed $(DATA_SEED) \
+	  -o $(DATA_OUT) --res 128 --spp 4,16,64 --ref-spp 1024
 
 clean:
 	rm -rf $(DEMO_OUT) .pytest_cache .ruff_cache build *.egg-info

@@ -16,6 +16,7 @@ diffuse        3   diffuse part of ``color`` (optional extra)
 specular       3   specular part of ``color`` (optional extra)
 visibility     1   direct-light visibility in [0, 1] (optional extra)
 motion         2   screen-space motion to the previous frame, pixels (x right, y down)
+motion_valid   1   1 where ``motion`` can be trusted (no disocclusion/edge), else 0
 =============  ==  ====================================================================
 
 For every name ``f`` above, ``f + "_var"`` holds the per-pixel **variance of the mean** of that
@@ -49,6 +50,7 @@ FEATURES: dict[str, int] = {
     "specular": 3,
     "visibility": 1,
     "motion": 2,
+    "motion_valid": 1,
 }
 #: Suffix of variance buffers: ``color_var`` is the variance of the mean of ``color``.
 VAR_SUFFIX = "_var"

@@ -21,6 +21,7 @@ diffuse         ``diffuse.R``, ``.G``, ``.B``               diffuse part of colo
 specular        ``specular.R``, ``.G``, ``.B``              specular part of color
 visibility      ``visibility.Y``                            direct-light visibility in [0, 1]
 motion          ``motion.X``, ``motion.Y``                  motion to the previous frame (pixels)
+motion_valid    ``motion_valid.Y``                          1 where the motion is trustworthy
 <buffer>_var    ``<buffer>_var.<same suffixes>``            variance of the mean of <buffer>
 <buffer>_var    ``<buffer>_var.Y`` (1 channel)              luminance variance of the mean
 ==============  ==========================================  =====================================
@@ -129,6 +130,7 @@ SUFFIXES: dict[str, tuple[str, ...]] = {
     "specular": ("R", "G", "B"),
     "visibility": ("Y",),
     "motion": ("X", "Y"),
+    "motion_valid": ("Y",),
 }
 #: Value of the ``mcdenoise:layout`` attribute written by :func:`mcdenoise.io.save_buffers`.
 LAYOUT_VERSION = "1"

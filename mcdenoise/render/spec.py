@@ -51,6 +51,22 @@ Schema (every length in scene units, every angle in degrees, colours linear RGB)
     position = [0, 3, 0]
     intensity = [10, 10, 10]
 
+    [animation]                           # optional: used by sequences (--frames N)
+    camera_path = "orbit"                 # orbit, dolly, keyframes or static
+    angle = 20                            # orbit: degrees about the camera's up axis through
+                                          # the target over the whole sequence (default 10;
+                                          # positive: counter-clockwise seen from above)
+    # fraction = 0.2                      # dolly: the origin moves this fraction of the way to
+                                          # the target (< 1; negative: away; default 0.1)
+    # keyframes = [{ origin = [0, 1, 4], target = [0, 1, 0] }, { origin = [1, 1, 4] }]
+                                          # keyframes: >= 2, evenly spaced over the sequence,
+                                          # linearly interpolated; a key without target (or
+                                          # origin) keeps the previous key's
+
+    [[objects]]                           # any object may move (linearly over the sequence):
+    shape = "sphere"
+    motion = { translate = [0.5, 0, 0] }  # world-space displacement from first to last frame
+
 Materials (``type`` and its parameters; ``<texture>`` is a colour ``[r, g, b]``, a scalar, or
 ``{ checkerboard = {color0, color1, scale} }``, ``{ image = "file.png", scale = 1 }`` or
 ``{ noise = {color0, color1, scale, seed} }`` — procedural value noise):
@@ -87,6 +103,12 @@ Effects (:data:`EFFECTS`): ``direct`` (light reaching a visible surface straight
 simulated), ``caustics`` (light through specular chains onto diffuse/glossy surfaces), ``dof``
 (thin-lens depth of field), ``ao`` (ambient occlusion instead of lighting). Whether a spec's
 effects and its content agree is checked by :func:`mcdenoise.render.effects.plan_effects`.
+
+Animation (``[animation]`` and ``objects[i].motion``) describes a sequence as a function of
+the sequence time ``s`` in [0, 1] (first to last frame); the frame count comes from the
+renderer (``mcdenoise render --frames N``), and :mod:`mcdenoise.render.sequences` samples the
+path at ``s = f / (N - 1)``. A still image (no ``--frames``) ignores it. A thin-lens camera's
+focus keeps its offset from the target (``focus_distance - |target - origin|``) along the path.
 
 Errors are :class:`SpecError` with the file and the key path, e.g.
 ``cornell.toml: objects[2].material: unknown material 'gld' (known: floor, red, white)``.
@@ -227,6 +249,47 @@ class SceneObject:
     radius: float | None = None  # sphere
     file: str | None = None  # mesh, absolute after loading
     emission: Vec3 | None = None
+    motion: Vec3 | None = None  # world-space translation over a sequence (first -> last frame)
+
+
+#: Camera paths of ``[animation]``.
+CAMERA_PATHS: tuple[str, ...] = ("orbit", "dolly", "keyframes", "static")
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    """One camera key of a ``keyframes`` path (origin and target, world space)."""
+
+    origin: Vec3
+    target: Vec3
+
+
+@dataclass(frozen=True)
+class Animation:
+    """How the camera moves over a sequence (``s`` in [0, 1], first to last frame).
+
+    ``orbit``: the origin turns by ``angle`` degrees about the camera's ``up`` axis through the
+    target. ``dolly``: the origin moves ``fraction`` of the way to the target. ``keyframes``:
+    origin and target interpolated linearly between evenly spaced keys. ``static``: the camera
+    stays (only objects move).
+    """
+
+    camera_path: str = "orbit"
+    angle: float = 10.0
+    fraction: float = 0.1
+    keyframes: tuple[Keyframe, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"camera_path": self.camera_path}
+        if self.camera_path == "orbit":
+            d["angle"] = self.angle
+        elif self.camera_path == "dolly":
+            d["fraction"] = self.fraction
+        elif self.camera_path == "keyframes":
+            d["keyframes"] = [
+                {"origin": list(k.origin), "target": list(k.target)} for k in self.keyframes
+            ]
+        return d
 
 
 @dataclass(frozen=True)
@@ -257,6 +320,7 @@ class SceneSpec:
     render: RenderSettings = field(default_factory=RenderSettings)
     description: str = ""
     source: str | None = None  # the spec file, when loaded from one
+    animation: Animation | None = None  # camera path of sequences (``[animation]``)
 
     def to_dict(self) -> dict[str, Any]:
         """The spec in the schema users write (JSON-serialisable): ``parse_spec`` reads it back
@@ -274,6 +338,8 @@ class SceneSpec:
         d["objects"] = [_object_dict(o) for o in self.objects]
         if self.lights:
             d["lights"] = [{"type": lt.type, **_jsonable(dict(lt.params))} for lt in self.lights]
+        if self.animation is not None:
+            d["animation"] = self.animation.to_dict()
         if self.source:
             d["source"] = self.source
         return d
@@ -323,9 +389,9 @@ def _material_dict(m: Material) -> dict[str, Any]:
 def _object_dict(o: SceneObject) -> dict[str, Any]:
     d: dict[str, Any] = {"shape": o.shape}
     d["material"] = o.material_name if o.material_name else _material_dict(o.material)
-    if o.shape == "sphere":
+    if o.shape == "sphere" and o.transform == Transform():
         d["center"], d["radius"] = list(o.center or (0.0, 0.0, 0.0)), o.radius
-    elif o.transform != Transform():
+    elif o.transform != Transform():  # (a sphere placed by a transform has center 0, radius 1)
         t = o.transform
         d["transform"] = {
             "translate": list(t.translate),
@@ -336,6 +402,8 @@ def _object_dict(o: SceneObject) -> dict[str, Any]:
         d["file"] = o.file
     if o.emission is not None:
         d["emission"] = list(o.emission)
+    if o.motion is not None:
+        d["motion"] = {"translate": list(o.motion)}
     return d
 
 
@@ -513,7 +581,16 @@ def _material(ctx: _Ctx, key: str, value: Any) -> Material:
     return Material(**kw)
 
 
-_SHAPE_KEYS = ("shape", "material", "transform", "center", "radius", "file", "emission")
+_SHAPE_KEYS = (
+    "shape",
+    "material",
+    "transform",
+    "center",
+    "radius",
+    "file",
+    "emission",
+    "motion",
+)
 
 
 def _transform(ctx: _Ctx, key: str, value: Any) -> Transform:
@@ -563,6 +640,12 @@ def _object(ctx: _Ctx, key: str, value: Any, materials: Mapping[str, Material]) 
         if max(em) <= 0:
             raise ctx.error(f"{key}.emission", "must be positive (omit it for a non-emitter)")
         kw["emission"] = em
+    if "motion" in o:
+        m = _table(ctx, f"{key}.motion", o["motion"])
+        _check_keys(ctx, f"{key}.motion", m, ("translate",))
+        if "translate" not in m:
+            raise ctx.error(f"{key}.motion", "needs translate = [dx, dy, dz]")
+        kw["motion"] = _vec3(ctx, f"{key}.motion.translate", m["translate"])
     return SceneObject(**kw)
 
 
@@ -615,7 +698,9 @@ def _light(ctx: _Ctx, key: str, value: Any) -> Light:
         n = math.sqrt(sum(c * c for c in d))
         if n == 0:
             raise ctx.error(f"{key}.direction", "must not be zero")
-        p["direction"] = tuple(c / n for c in d)
+        # Normalise once: a direction that is already unit length is kept bit for bit, so
+        # parse -> to_dict -> parse round trips exactly.
+        p["direction"] = d if abs(n - 1.0) <= 1e-12 else tuple(c / n for c in d)
         p["irradiance"] = _vec3(ctx, f"{key}.irradiance", lt.get("irradiance"), nonneg=True)
         p["angular_diameter"] = _num(
             ctx, f"{key}.angular_diameter", lt.get("angular_diameter", 0.53), lo=0.0, hi=30.0
@@ -672,7 +757,66 @@ def _camera(ctx: _Ctx, value: Any) -> Camera:
     return Camera(**kw)
 
 
-_TOP_KEYS = ("name", "description", "effects", "render", "camera", "materials", "objects", "lights")
+_ANIMATION_KEYS = {
+    "orbit": ("camera_path", "angle"),
+    "dolly": ("camera_path", "fraction"),
+    "keyframes": ("camera_path", "keyframes"),
+    "static": ("camera_path",),
+}
+
+
+def _animation(ctx: _Ctx, value: Any) -> Animation:
+    a = _table(ctx, "animation", value)
+    path = a.get("camera_path", "orbit")
+    if path not in CAMERA_PATHS:
+        raise ctx.error(
+            "animation.camera_path", f"must be one of {', '.join(CAMERA_PATHS)}, got {path!r}"
+        )
+    _check_keys(ctx, "animation", a, _ANIMATION_KEYS[path])
+    if path == "orbit":
+        return Animation("orbit", angle=_num(ctx, "animation.angle", a.get("angle", 10.0)))
+    if path == "dolly":
+        frac = _num(ctx, "animation.fraction", a.get("fraction", 0.1))
+        if frac >= 1.0:
+            raise ctx.error(
+                "animation.fraction", f"must be < 1 (1 reaches the target), got {frac:g}"
+            )
+        return Animation("dolly", fraction=frac)
+    if path == "static":
+        return Animation("static")
+    keys = a.get("keyframes")
+    if not isinstance(keys, Sequence) or isinstance(keys, str) or len(keys) < 2:
+        raise ctx.error("animation.keyframes", "must be a list of at least 2 {origin, target}")
+    frames: list[Keyframe] = []
+    for i, k in enumerate(keys):
+        where = f"animation.keyframes[{i}]"
+        kt = _table(ctx, where, k)
+        _check_keys(ctx, where, kt, ("origin", "target"))
+        if i == 0 and not ("origin" in kt and "target" in kt):
+            raise ctx.error(where, "the first keyframe needs both origin and target")
+        origin = (
+            _vec3(ctx, f"{where}.origin", kt["origin"]) if "origin" in kt else frames[-1].origin
+        )
+        target = (
+            _vec3(ctx, f"{where}.target", kt["target"]) if "target" in kt else frames[-1].target
+        )
+        if origin == target:
+            raise ctx.error(where, "origin and target must differ")
+        frames.append(Keyframe(origin, target))
+    return Animation("keyframes", keyframes=tuple(frames))
+
+
+_TOP_KEYS = (
+    "name",
+    "description",
+    "effects",
+    "render",
+    "camera",
+    "materials",
+    "objects",
+    "lights",
+    "animation",
+)
 
 
 def parse_spec(
@@ -733,6 +877,7 @@ def parse_spec(
         render=render,
         description=desc,
         source=top.get("source") if source == "<spec>" else source,
+        animation=_animation(ctx, top["animation"]) if "animation" in top else None,
     )
 
 

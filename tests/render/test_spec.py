@@ -164,3 +164,88 @@ def test_name_defaults_to_file_stem(tmp_path):
     p = tmp_path / "my_scene.toml"
     p.write_text('effects = ["direct"]\n[[objects]]\nshape = "sphere"\nemission = [1, 1, 1]\n')
     assert load_spec(p).name == "my_scene"
+
+
+# --- [animation] and objects[i].motion (sequences) -------------------------------------------
+@pytest.mark.parametrize(
+    "animation",
+    [
+        {"camera_path": "orbit", "angle": -25},
+        {"camera_path": "dolly", "fraction": 0.4},
+        {"camera_path": "static"},
+        {
+            "camera_path": "keyframes",
+            "keyframes": [
+                {"origin": [0, 1, 4], "target": [0, 1, 0]},
+                {"origin": [2, 1, 4]},
+                {"target": [1, 0, 0]},
+            ],
+        },
+    ],
+)
+def test_animation_parses_and_round_trips(animation):
+    d = spec_with("animation", animation)
+    d["objects"][1]["motion"] = {"translate": [0.5, 0, -1]}
+    s = parse_spec(d)
+    assert s.animation is not None and s.animation.camera_path == animation["camera_path"]
+    assert s.objects[1].motion == (0.5, 0.0, -1.0) and s.objects[0].motion is None
+    assert parse_spec(json.loads(json.dumps(s.to_dict()))) == s
+    if animation["camera_path"] == "keyframes":  # a key without origin/target keeps the last
+        assert [k.origin for k in s.animation.keyframes] == [(0, 1, 4), (2, 1, 4), (2, 1, 4)]
+        assert [k.target for k in s.animation.keyframes] == [(0, 1, 0), (0, 1, 0), (1, 0, 0)]
+
+
+def test_animation_defaults_and_absence():
+    assert parse_spec(BASE).animation is None
+    assert "animation" not in parse_spec(BASE).to_dict()
+    assert parse_spec(spec_with("animation", {})).animation.angle == 10.0  # an orbit
+    assert parse_spec(spec_with("animation", {"camera_path": "dolly"})).animation.fraction == 0.1
+
+
+def test_a_sphere_placed_by_a_transform_round_trips():
+    d = spec_with("objects.0", {"shape": "sphere", "transform": {"translate": [1, 2, 3]}})
+    s = parse_spec(d)
+    assert parse_spec(json.loads(json.dumps(s.to_dict()))) == s
+
+
+@pytest.mark.parametrize(
+    "path,value,fragment",
+    [
+        ("animation", {"camera_path": "crane"}, "must be one of orbit, dolly"),
+        ("animation", {"camera_path": "dolly", "fraction": 1.0}, "must be < 1"),
+        ("animation", {"camera_path": "dolly", "angle": 3}, "unknown key(s) angle"),
+        ("animation", {"camera_path": "orbit", "angle": "a lot"}, "animation.angle"),
+        ("animation", {"camera_path": "keyframes"}, "at least 2"),
+        (
+            "animation",
+            {"camera_path": "keyframes", "keyframes": [{"origin": [0, 0, 1]}, {}]},
+            "first keyframe needs both",
+        ),
+        (
+            "animation",
+            {
+                "camera_path": "keyframes",
+                "keyframes": [{"origin": [0, 0, 1], "target": [0, 0, 1]}] * 2,
+            },
+            "keyframes[0]: origin and target must differ",
+        ),
+        ("animation", [1, 2], "must be a table"),
+        ("objects.1.motion", {"rotate": [0, 1, 0]}, "unknown key(s) rotate"),
+        ("objects.1.motion", {}, "needs translate"),
+        ("objects.1.motion", {"translate": [1, 2]}, "objects[1].motion.translate"),
+    ],
+)
+def test_invalid_animation_names_the_key(path, value, fragment):
+    with pytest.raises(SpecError) as info:
+        parse_spec(spec_with(path, value), source="scene.toml")
+    msg = str(info.value)
+    assert msg.startswith("scene.toml: ") and fragment in msg and "\n" not in msg
+
+
+def test_sun_direction_round_trips_bit_for_bit():
+    d = copy.deepcopy(BASE)
+    d["lights"] = [{"type": "sun", "direction": [0.3, 0.7, 0.2], "irradiance": [1, 1, 1]}]
+    s1 = parse_spec(d)
+    s2 = parse_spec(s1.to_dict())
+    s3 = parse_spec(s2.to_dict())
+    assert s1 == s2 == s3

@@ -1,0 +1,157 @@
+"""``mcdenoise render``: click wiring for :func:`mcdenoise.render.generate.generate`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+
+@click.command("render")
+@click.argument("specs", nargs=-1, type=click.Path())
+@click.option(
+    "--random",
+    "random_count",
+    type=int,
+    default=None,
+    metavar="N",
+    help="Also render N procedural scenes (seeded by --seed).",
+)
+@click.option(
+    "--seed",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Base seed: of the procedural scenes and of every image's sampler seeds.",
+)
+@click.option(
+    "-o", "--out", required=True, type=click.Path(), help="Output folder (created if missing)."
+)
+@click.option("--res", default="256", show_default=True, help="Image size: N or WxH pixels.")
+@click.option(
+    "--spp",
+    default="4,16,64",
+    show_default=True,
+    help="Noisy spp levels, increasing; rendered progressively (16 reuses 4's samples).",
+)
+@click.option("--ref-spp", type=int, default=4096, show_default=True, help="Reference spp.")
+@click.option(
+    "--variant",
+    default="auto",
+    show_default=True,
+    metavar="auto|scalar_rgb|llvm_ad_rgb|cuda_ad_rgb",
+    help="Mitsuba variant; auto: cuda_ad_rgb with a GPU, else llvm_ad_rgb if it works, else "
+    "scalar_rgb.",
+)
+@click.option(
+    "--shard",
+    default="1/1",
+    show_default=True,
+    metavar="I/N",
+    help="Render only images with index = I-1 (mod N); shards are numbered 1..N.",
+)
+@click.option(
+    "--pass-spp",
+    type=int,
+    default=128,
+    show_default=True,
+    help="Most samples per pixel of one render call (bounds memory).",
+)
+@click.option(
+    "--compression",
+    default="zip",
+    show_default=True,
+    type=click.Choice(["none", "zip", "zips", "piz", "rle"]),
+    help="EXR compression (lossless only).",
+)
+@click.option(
+    "--frames",
+    type=int,
+    default=None,
+    metavar="N",
+    help="Render every scene as a sequence of N >= 2 frames (its [animation] camera path, "
+    "else a 1°-per-frame orbit) with motion vectors: OUT/<id>/frame_0000.exr, "
+    "OUT/<id>/ref/frame_0000.exr, ...",
+)
+@click.option(
+    "--progress/--no-progress", default=None, help="Progress bar (default: when on a terminal)."
+)
+def render(
+    specs,
+    random_count,
+    seed,
+    out,
+    res,
+    spp,
+    ref_spp,
+    variant,
+    shard,
+    pass_spp,
+    compression,
+    frames,
+    progress,
+):
+    """Render a denoising data set with Mitsuba 3 from scene SPECS (TOML files or folders of
+    them) and/or --random N procedural scenes.
+
+    \b
+    Per image: OUT/<id>.exr (one part per spp level: spp4, spp16, ...; colour, features and
+    their variances) and OUT/ref/<id>.exr (the reference); OUT/manifest.json records specs,
+    seeds, the Mitsuba variant and the render seconds. Re-running skips finished images;
+    --shard I/N splits the work between jobs writing into one folder. With --frames N, per
+    scene the folder OUT/<id>/ holds frame_0000.exr ... (the same buffers plus `motion`) and
+    ref/frame_0000.exr ...; sequences are sharded whole and resumed frame by frame.
+    """
+    from mcdenoise.errors import InputError
+    from mcdenoise.render.generate import (
+        RenderConfig,
+        generate,
+        jobs_from_random,
+        jobs_from_specs,
+        parse_res,
+        parse_shard,
+        parse_spp,
+    )
+    from mcdenoise.render.spec import load_spec
+
+    if not specs and random_count is None:
+        raise InputError("nothing to render: give SPEC.toml files (or folders) or --random N")
+    width, height = parse_res(res)
+    config = RenderConfig(
+        out=Path(out),
+        width=width,
+        height=height,
+        spp=parse_spp(spp),
+        ref_spp=ref_spp,
+        variant=variant,
+        shard=parse_shard(shard),
+        pass_spp=pass_spp,
+        seed=seed,
+        compression=compression,
+        progress=sys.stderr.isatty() if progress is None else progress,
+        frames=frames,
+    )
+    files: list[Path] = []
+    for s in specs:
+        p = Path(s)
+        if p.is_dir():
+            found = sorted(p.glob("*.toml"))
+            if not found:
+                raise InputError(f"{p}: folder holds no *.toml scene spec")
+            files.extend(found)
+        else:
+            files.append(p)
+    jobs = jobs_from_specs([load_spec(f) for f in files], seed=seed)
+    if random_count is not None:
+        jobs += jobs_from_random(random_count, seed, start=len(jobs), taken=[j.id for j in jobs])
+    result = generate(jobs, config)
+    i, n = config.shard
+    where = f" (shard {i}/{n})" if n > 1 else ""
+    how = f" with {result.variant}" if result.variant else ""
+    what = "image(s)" if frames is None else f"sequence(s) of {frames} frames"
+    click.echo(
+        f"rendered {len(result.rendered)}, skipped {len(result.skipped)} already finished, "
+        f"of {result.shard_jobs} {what}{where}{how} in {result.seconds:.1f} s; "
+        f"manifest: {result.manifest}"
+    )

@@ -1,0 +1,163 @@
+"""``mcdenoise render`` as users meet it: a tiny data set end to end, and one-line errors.
+
+Renders are 16×16 pixels at a few spp in ``scalar_rgb``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from mcdenoise_cli.main import main
+
+from mcdenoise.io import load_buffers
+
+SPEC = """
+name = "{name}"
+effects = ["direct"]
+[camera]
+origin = [0, 1, 4]
+target = [0, 0.5, 0]
+[[objects]]
+shape = "rectangle"
+transform = {{ rotate = [-90, 0, 0], scale = [3, 3, 1] }}
+[[objects]]
+shape = "sphere"
+center = [0, 0.5, 0]
+radius = 0.5
+material = {{ type = "diffuse", reflectance = [0.7, 0.3, 0.2] }}
+[[lights]]
+type = "point"
+position = [1, 3, 2]
+intensity = [20, 20, 20]
+"""
+TINY = ("--res", "16", "--spp", "1,4", "--ref-spp", "8", "--variant", "scalar_rgb")
+
+
+def run(*args: str):
+    return CliRunner().invoke(main, list(args), catch_exceptions=False)
+
+
+def one_line_error(result) -> str:
+    assert result.exit_code not in (0, None), result.output
+    err = result.stderr.strip()
+    assert "Traceback" not in result.output + err
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def spec(folder: Path, name: str = "ball", text: str = SPEC) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.toml"
+    path.write_text(text.format(name=name), encoding="utf-8")
+    return path
+
+
+@pytest.mark.mitsuba
+def test_render_a_folder_of_specs_then_info_and_denoise_a_level(tmp_path: Path) -> None:
+    specs = tmp_path / "scenes"
+    spec(specs, "a"), spec(specs, "b")
+    out = tmp_path / "data"
+    r = run("render", str(specs), "-o", str(out), *TINY)
+    assert r.exit_code == 0, r.output + r.stderr
+    assert "rendered 2, skipped 0" in r.output and "scalar_rgb" in r.output
+    assert sorted(p.name for p in out.glob("*.exr")) == ["a.exr", "b.exr"]
+    assert sorted(p.name for p in (out / "ref").glob("*.exr")) == ["a.exr", "b.exr"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [i["id"] for i in manifest["images"]] == ["a", "b"]
+    assert manifest["settings"]["spp"] == [1, 4] and manifest["settings"]["ref_spp"] == 8
+
+    again = run("render", str(specs), "-o", str(out), *TINY)
+    assert again.exit_code == 0 and "rendered 0, skipped 2" in again.output
+
+    info = run("info", str(out / "a.exr"), "--part", "spp4", "--json")
+    assert info.exit_code == 0, info.output
+    record = json.loads(info.output)
+    assert record["spp"] == 4 and "color_var" in json.dumps(record)
+
+    den = tmp_path / "den.exr"
+    d = run(
+        "denoise", str(out / "a.exr"), "--part", "spp4", "-o", str(den), "-m", "cross-bilateral"
+    )
+    assert d.exit_code == 0, d.output + d.stderr
+    assert load_buffers(den).spp == 4
+
+
+@pytest.mark.mitsuba
+def test_two_shard_jobs_share_one_folder(tmp_path: Path) -> None:
+    files = [str(spec(tmp_path / "s", f"x{i}")) for i in range(3)]
+    out = tmp_path / "out"
+    for shard in ("1/2", "2/2"):
+        r = run("render", *files, "-o", str(out), "--shard", shard, *TINY)
+        assert r.exit_code == 0 and f"(shard {shard})" in r.output, r.output + r.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [i["id"] for i in manifest["images"]] == ["x0", "x1", "x2"]
+    assert len(manifest["shards"]) == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("--shard", "3/2"), "shard 3/2"),
+        (("--shard", "two"), "--shard 'two'"),
+        (("--spp", "0"), "--spp '0'"),
+        (("--spp", "16,4"), "strictly increasing"),
+        (("--ref-spp", "0"), "ref_spp"),
+        (("--variant", "gpu"), "unknown Mitsuba variant 'gpu'"),
+        (("--res", "0"), "--res '0'"),
+        (("--seed", "-1"), "seed"),
+    ],
+)
+def test_bad_options_give_one_line(tmp_path: Path, args, needle) -> None:
+    msg = one_line_error(run("render", str(spec(tmp_path)), "-o", str(tmp_path / "o"), *args))
+    assert needle in msg
+    assert not (tmp_path / "o").exists()
+
+
+def test_bad_spec_names_file_and_key(tmp_path: Path) -> None:
+    bad = spec(tmp_path, "bad", SPEC.replace('"direct"', '"direct", "sparkles"'))
+    msg = one_line_error(run("render", str(bad), "-o", str(tmp_path / "o")))
+    assert "bad.toml" in msg and "effects" in msg and "sparkles" in msg
+
+
+def test_nothing_to_render_and_unwritable_output(tmp_path: Path) -> None:
+    assert "nothing to render" in one_line_error(run("render", "-o", str(tmp_path / "o")))
+    if Path("/proc/self").is_dir():  # Linux: nobody, root included, can create files there
+        msg = one_line_error(run("render", str(spec(tmp_path)), "-o", "/proc/self/out", *TINY))
+        assert "/proc/self/out" in msg
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert "no *.toml" in one_line_error(run("render", str(empty), "-o", str(tmp_path / "o")))
+
+
+def test_missing_mitsuba_says_how_to_install(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "mitsuba", None)
+    msg = one_line_error(run("render", str(spec(tmp_path)), "-o", str(tmp_path / "o"), *TINY))
+    assert "pip install 'mcdenoise[render]'" in msg
+
+
+def test_random_without_the_generator_is_a_clear_error(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "mcdenoise.render.random_scenes", None)
+    msg = one_line_error(run("render", "--random", "2", "-o", str(tmp_path / "o"), *TINY))
+    assert "--random" in msg and "random_scenes" in msg
+
+
+@pytest.mark.mitsuba
+def test_random_scenes_are_rendered_and_recorded(tmp_path: Path) -> None:
+    pytest.importorskip("mcdenoise.render.random_scenes")
+    from mcdenoise.render.random_scenes import random_spec
+    from mcdenoise.render.spec import parse_spec
+
+    out = tmp_path / "r"
+    r = run("render", "--random", "2", "--seed", "5", "-o", str(out), *TINY)
+    assert r.exit_code == 0, r.output + r.stderr
+    images = json.loads((out / "manifest.json").read_text())["images"]
+    assert [i["id"] for i in images] == ["random_s5_00000", "random_s5_00001"]
+    for k, rec in enumerate(images):
+        want = random_spec(5, k).to_dict()
+        want.pop("source", None)
+        assert parse_spec(rec["spec"]) == parse_spec(want)
+        assert load_buffers(out / rec["files"]["noisy"], part="spp4").spp == 4
