@@ -75,7 +75,8 @@ def denoise(
         raise click.UsageError("several methods write several files: give -o a folder")
     jobs = []
     for m in chosen:
-        jobs += [(src, dst, m) for src, dst in zip(files, dn.plan_outputs(files, output, m.name))]
+        outs = dn.plan_outputs(files, output, m.name, part=part)
+        jobs += [(src, dst, m) for src, dst in zip(files, outs)]
     if output is not None and Path(output).suffix.lower() != ".exr":
         Path(output).mkdir(parents=True, exist_ok=True)
     read = dn.ReadOptions(profile=profile, mapping=mapping, part=part, spp=spp)

@@ -229,6 +229,8 @@ def denoise_file(
     )
     attrs: dict[str, Any] = result.attributes()
     attrs["mcdenoise:source"] = str(src.resolve())
+    if read.part is not None:
+        attrs["mcdenoise:source_part"] = str(read.part)
     if buffers.spp is not None:
         attrs["mcdenoise:spp"] = int(buffers.spp)
     report = save_buffers(
@@ -279,13 +281,20 @@ def collect_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
 
 
 def plan_outputs(
-    inputs: Sequence[Path], output: str | os.PathLike[str] | None, method_name: str
+    inputs: Sequence[Path],
+    output: str | os.PathLike[str] | None,
+    method_name: str,
+    *,
+    part: str | None = None,
 ) -> list[Path]:
     """Output path for each input.
 
     * one input and ``output`` a file name (``*.exr``) -> that file;
     * ``output`` a folder (existing, or a name without ``.exr``) -> ``folder/<stem>_<method>.exr``;
     * no ``output`` -> ``<stem>_<method>.exr`` next to each input.
+
+    With ``part`` (a level of a multi-part file, e.g. ``spp16``) the name is
+    ``<stem>_<part>_<method>.exr``, so outputs of different levels never collide.
     """
     if output is not None:
         out = Path(output)
@@ -300,7 +309,8 @@ def plan_outputs(
         folders = [out] * len(inputs)
     else:
         folders = [p.parent for p in inputs]
-    outs = [f / f"{p.stem}_{method_name}.exr" for f, p in zip(folders, inputs)]
+    tag = f"_{part}" if part else ""
+    outs = [f / f"{p.stem}{tag}_{method_name}.exr" for f, p in zip(folders, inputs)]
     if len(set(outs)) != len(outs):
         raise InputError("two inputs would write the same output name; use separate folders")
     return outs

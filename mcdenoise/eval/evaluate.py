@@ -45,6 +45,7 @@ PathLike = str | os.PathLike[str]
 ATTR_METHOD = "mcdenoise:method"
 ATTR_PARAMS = "mcdenoise:params"
 ATTR_SOURCE = "mcdenoise:source"
+ATTR_SOURCE_PART = "mcdenoise:source_part"
 ATTR_SECONDS = "mcdenoise:seconds"
 ATTR_DEVICE = "mcdenoise:device"
 ATTR_SPP = "mcdenoise:spp"
@@ -108,8 +109,10 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def _key(p: Path) -> str:
-    return str(p.resolve())
+def _key(p: Path, part: str | None = None) -> str:
+    """Identity of an image: the resolved file, plus ``#part`` for one part of a multi-part
+    file (a data set written by ``mcdenoise render`` keeps every spp level in one file)."""
+    return str(p.resolve()) + (f"#{part}" if part else "")
 
 
 # --- metadata -----------------------------------------------------------------------------
@@ -120,8 +123,10 @@ class _Meta:
     """What the header of one EXR says about how it was made."""
 
     path: Path
+    part: str | None = None  # the part of ``path`` described (None: the default part)
     method: str | None = None
     source: str | None = None
+    source_part: str | None = None
     seconds: float | None = None
     device: str | None = None
     params: str | None = None
@@ -144,13 +149,16 @@ def _as_float(v: Any) -> float | None:
     return f if np.isfinite(f) else None
 
 
-def _meta(path: Path, attributes: Mapping[str, Any], spp: int | None) -> _Meta:
+def _meta(
+    path: Path, attributes: Mapping[str, Any], spp: int | None, part: str | None = None
+) -> _Meta:
     attrs = dict(attributes)
     params = attrs.get(ATTR_PARAMS)
     if params is not None and not isinstance(params, str):
         params = json.dumps(params, sort_keys=True, default=str)
     method = attrs.get(ATTR_METHOD)
     source = attrs.get(ATTR_SOURCE)
+    source_part = attrs.get(ATTR_SOURCE_PART)
     device = attrs.get(ATTR_DEVICE)
     spp_value = _as_int(attrs.get(ATTR_SPP)) or _as_int(spp)
     if spp_value is None:
@@ -158,8 +166,10 @@ def _meta(path: Path, attributes: Mapping[str, Any], spp: int | None) -> _Meta:
         spp_value = int(m.group(1)) if m else None
     return _Meta(
         path=path,
+        part=part,
         method=str(method) if method not in (None, "") else None,
         source=str(source) if source not in (None, "") else None,
+        source_part=str(source_part) if source_part not in (None, "") else None,
         seconds=_as_float(attrs.get(ATTR_SECONDS)),
         device=str(device) if device not in (None, "") else None,
         params=params,
@@ -167,20 +177,23 @@ def _meta(path: Path, attributes: Mapping[str, Any], spp: int | None) -> _Meta:
     )
 
 
-def _probe(path: Path) -> _Meta:
-    """Header metadata of one EXR (first part), without reading pixels."""
-    from mcdenoise.io.exr import probe_exr
+def _probe(path: Path, part: str | None = None) -> _Meta:
+    """Header metadata of one EXR (the first part, or the part named ``part``), without
+    reading pixels."""
+    from mcdenoise.io.exr import probe_exr, select_part
 
-    return _meta(path, probe_exr(path)[0].attributes, None)
+    parts = probe_exr(path)
+    header = parts[0] if part is None else select_part(parts, part, str(path))
+    return _meta(path, header.attributes, None, part)
 
 
-def _load(path: Path) -> tuple[np.ndarray, _Meta]:
-    """Colour ``(3, H, W)`` float32 linear HDR RGB and metadata of one EXR."""
+def _load(path: Path, part: str | None = None) -> tuple[np.ndarray, _Meta]:
+    """Colour ``(3, H, W)`` float32 linear HDR RGB and metadata of one EXR (or one part)."""
     from mcdenoise.io import load_buffers
 
-    buf = load_buffers(path)
+    buf = load_buffers(path, part=part)
     color = buf["color"].detach().cpu().numpy()
-    return color, _meta(path, buf.attributes, buf.spp)
+    return color, _meta(path, buf.attributes, buf.spp, part)
 
 
 # --- the engine ---------------------------------------------------------------------------
@@ -328,7 +341,12 @@ class _Planned:
     meta: _Meta
     scene: str
     input: Path | None = None
+    input_part: str | None = None  # the part of ``input`` the output was made from
     notes: list[str] = field(default_factory=list)
+
+    @property
+    def input_key(self) -> str | None:
+        return None if self.input is None else _key(self.input, self.input_part)
 
 
 def evaluate(
@@ -404,7 +422,7 @@ def evaluate(
             if not src.is_absolute() and not src.is_file():
                 src = meta.path.parent / src  # a relative source: relative to the output
             if src.is_file():
-                plan.input = src
+                plan.input, plan.input_part = src, meta.source_part
             else:
                 plan.notes.append(f"noisy input {meta.source} ({ATTR_SOURCE}) not found")
         if plan.input is None and noisy_given:
@@ -415,22 +433,24 @@ def evaluate(
         planned[key] = plan
 
     # 3. a given file without a method attribute that is another output's input is a noisy row
-    sources = {_key(p.input) for p in planned.values() if p.input is not None}
+    sources = {p.input_key for p in planned.values() if p.input is not None}
     for key in list(planned):
         if planned[key].meta.method is None and (key in sources or key in noisy_given):
             noisy_given.setdefault(key, planned.pop(key).meta.path)
     # (an input that is itself an evaluated output, e.g. a denoiser chain, gets no noisy row)
-    noisy_files: dict[str, Path] = {k: p for k, p in noisy_given.items() if k not in planned}
+    noisy_files: dict[str, tuple[Path, str | None]] = {
+        k: (p, None) for k, p in noisy_given.items() if k not in planned
+    }
     for plan in planned.values():
-        if plan.input is not None and _key(plan.input) not in planned:
-            noisy_files.setdefault(_key(plan.input), plan.input)
+        if plan.input is not None and plan.input_key not in planned:
+            noisy_files.setdefault(plan.input_key, (plan.input, plan.input_part))
 
     # 4. noisy inputs: metadata and scene
     noisy_meta: dict[str, _Meta] = {}
     noisy_scene: dict[str, str] = {}
-    for key, path in noisy_files.items():
-        noisy_meta[key] = given[key] if key in given else _probe(path)
-        users = [p.scene for p in planned.values() if p.input is not None and _key(p.input) == key]
+    for key, (path, part) in noisy_files.items():
+        noisy_meta[key] = given[key] if key in given else _probe(path, part)
+        users = [p.scene for p in planned.values() if p.input_key == key]
         noisy_scene[key] = users[0] if users else scene_of(path, "noisy input")
 
     # 5. jobs per scene: each noisy input (by spp, name) followed by its outputs, then the rest
@@ -445,7 +465,7 @@ def evaluate(
             jobs: list[_Job] = []
             scene_noisy = sorted(
                 (k for k, s in noisy_scene.items() if s == scene),
-                key=lambda k: (noisy_meta[k].spp or 0, str(noisy_files[k])),
+                key=lambda k: (noisy_meta[k].spp or 0, k),
             )
             scene_outputs = sorted(
                 (p for p in planned.values() if p.scene == scene), key=lambda p: str(p.meta.path)
@@ -454,12 +474,12 @@ def evaluate(
             for nkey in scene_noisy:
                 jobs.append(_file_job(noisy_meta[nkey], scene, ROLE_NOISY, "noisy", None))
                 for plan in scene_outputs:
-                    if plan.input is not None and _key(plan.input) == nkey:
+                    if plan.input_key == nkey:
                         jobs.append(_output_job(plan, noisy_meta[nkey]))
                         placed.add(_key(plan.meta.path))
             for plan in scene_outputs:
                 if _key(plan.meta.path) not in placed:
-                    upstream = given.get(_key(plan.input)) if plan.input is not None else None
+                    upstream = given.get(plan.input_key) if plan.input_key else None
                     jobs.append(_output_job(plan, upstream))
             ref_path = refs[scene]
             ref_color = _load(ref_path)[0]
@@ -488,22 +508,27 @@ def _references(reference: PathLike) -> dict[str, Path]:
     return refs
 
 
-def _file_job(meta: _Meta, scene: str, role: str, method: str, input_path: Path | None) -> _Job:
+def _label(meta: _Meta) -> str:
+    """How an image is named in records: its file, plus ``#part`` for one part of a file."""
+    return str(meta.path) + (f"#{meta.part}" if meta.part else "")
+
+
+def _file_job(meta: _Meta, scene: str, role: str, method: str, upstream: _Meta | None) -> _Job:
     rec = EvalRecord(
         scene=scene,
-        file=str(meta.path),
+        file=_label(meta),
         role=role,
         method=method,
-        input=None if input_path is None else str(input_path),
+        input=None if upstream is None else _label(upstream),
         spp=meta.spp,
         seconds=meta.seconds if role == ROLE_OUTPUT else None,
         device=meta.device if role == ROLE_OUTPUT else None,
         params=meta.params if role == ROLE_OUTPUT else None,
     )
-    path = meta.path
+    path, part = meta.path, meta.part
 
     def load() -> np.ndarray:
-        color, loaded = _load(path)
+        color, loaded = _load(path, part)
         if rec.spp is None:
             rec.spp = loaded.spp
         return color
@@ -514,10 +539,10 @@ def _file_job(meta: _Meta, scene: str, role: str, method: str, input_path: Path 
 def _output_job(plan: _Planned, noisy: _Meta | None) -> _Job:
     meta = plan.meta
     method = meta.method or _method_from_name(meta.path.stem, noisy, plan.scene)
-    job = _file_job(meta, plan.scene, ROLE_OUTPUT, method, None if noisy is None else noisy.path)
+    job = _file_job(meta, plan.scene, ROLE_OUTPUT, method, noisy)
     if job.record.spp is None and noisy is not None:
         job.record.spp = noisy.spp
-    job.input_key = None if noisy is None else str(noisy.path)
+    job.input_key = None if noisy is None else _label(noisy)
     job.extra_notes = list(plan.notes)
     return job
 

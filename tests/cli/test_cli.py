@@ -299,3 +299,38 @@ sys.exit(main(["denoise", {str(folder)!r}, "-o", {str(out)!r}, "-m", "nlm"]))
     assert not list(out.glob(TMP_PREFIX + "*"))
     got = load_buffers(written[0])
     assert np.isfinite(got.color.numpy()).all()
+
+
+def test_eval_of_a_part_compares_with_the_same_part(tmp_path):
+    """Outputs made from one level of a multi-part file (``--part spp16``) are compared with
+    that level's noisy row, not with the file's first part."""
+    import json as _json
+
+    from mcdenoise.io import save_buffers_parts
+
+    h, w = 24, 20
+    yy, xx = torch.meshgrid(torch.linspace(0, 1, h), torch.linspace(0, 1, w), indexing="ij")
+    clean = torch.stack([0.2 + 0.5 * xx, 0.3 + 0.4 * yy, 0.5 + 0.0 * xx])
+    g = torch.Generator().manual_seed(0)
+    parts = {}
+    for name, sigma, spp in (("spp4", 0.2, 4), ("spp16", 0.05, 16)):
+        noisy = (clean + sigma * torch.randn(3, h, w, generator=g)).clamp_min(0)
+        parts[name] = FeatureBuffers({"color": noisy}, spp=spp)
+    (tmp_path / "ref").mkdir()
+    save_buffers(tmp_path / "ref" / "scene.exr", FeatureBuffers({"color": clean}))
+    save_buffers_parts(tmp_path / "scene.exr", parts)
+    out = tmp_path / "den"
+    for part in ("spp4", "spp16"):
+        r = run("denoise", str(tmp_path / "scene.exr"), "--part", part, "-m", "nlm", "-o", str(out))
+        assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in out.iterdir()) == ["scene_spp16_nlm.exr", "scene_spp4_nlm.exr"]
+    rep = tmp_path / "rep"
+    assert run("eval", "--ref", str(tmp_path / "ref"), str(out), "-o", str(rep)).exit_code == 0
+    records = _json.loads((rep / "results.json").read_text())["records"]
+    noisy = {r["spp"]: r for r in records if r["method"] == "noisy"}
+    assert sorted(noisy) == [4, 16]
+    assert noisy[16]["metrics"]["relmse"] < noisy[4]["metrics"]["relmse"]
+    for r in records:
+        if r["method"] == "nlm":
+            base = noisy[r["spp"]]["metrics"]["relmse"]
+            assert r["relmse_ratio"] == pytest.approx(r["metrics"]["relmse"] / base)
