@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import math
 import shlex
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -55,20 +54,12 @@ DEFAULT_PASS_SPP = 128
 #: Variants tried in order when ``--variant`` is not given.
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")
 
-#: AOV specification of the nested ``aov`` integrator (Mitsuba ``<name>:<type>`` pairs).
+#: Feature buffers of every sample image (their Mitsuba AOVs: ``mcdenoise.render.moments``).
+FEATURES = ("albedo", "normal", "depth", "position")
+#: Buffer names of :func:`render_buffers` (colour first).
+CHANNELS = ("color", *FEATURES)
+#: Mitsuba AOV string of the nested ``aov`` integrator, for the README.
 AOVS = "albedo:albedo,normal:sh_normal,depth:depth,position:position"
-#: Names the integrators are given in the scene dict; they prefix the film's channel names.
-_AOV_NAME = "inner"
-_PATH_NAME = "path"
-#: Buffer name -> film channel names of its first moment (looked up by name, never by position).
-#: The ``moment`` integrator adds ``m2_<channel>`` for the second moment of each.
-CHANNELS: dict[str, tuple[str, ...]] = {
-    "color": tuple(f"{_AOV_NAME}.{_PATH_NAME}.{c}" for c in "RGB"),
-    "albedo": tuple(f"{_AOV_NAME}.albedo.{c}" for c in "RGB"),
-    "normal": tuple(f"{_AOV_NAME}.normal.{c}" for c in "XYZ"),
-    "depth": (f"{_AOV_NAME}.depth.T",),
-    "position": tuple(f"{_AOV_NAME}.position.{c}" for c in "XYZ"),
-}
 #: Buffers written to the reference files. Colour only: noisy float32 colour is nearly
 #: incompressible, and with the features (or ``color_var``) the folder exceeds its 5 MB budget.
 REF_BUFFERS = ("color",)
@@ -79,60 +70,12 @@ FLOAT32_BUFFERS = ("color", "color_var")
 # --------------------------------------------------------------------------------------------
 # Variant selection
 # --------------------------------------------------------------------------------------------
-_PROBE = """
-import mitsuba as mi
-mi.set_variant({variant!r})
-scene = mi.load_dict({{"type": "scene", "integrator": {{"type": "path"}},
-    "sensor": {{"type": "perspective",
-    "film": {{"type": "hdrfilm", "width": 4, "height": 4}}}},
-    "s": {{"type": "sphere", "emitter": {{"type": "area"}}}}}})
-img = mi.render(scene, spp=2)
-assert img.shape == (4, 4, 3)
-"""
-
-
-def variant_works(variant: str, *, timeout: float = 120.0) -> bool:
-    """True when ``variant`` can render a tiny scene.
-
-    Tried in a child process because a JIT variant with a broken LLVM aborts the interpreter
-    instead of raising.
-    """
-    try:
-        proc = subprocess.run(
-            [sys.executable, "-c", _PROBE.format(variant=variant)],
-            capture_output=True,
-            timeout=timeout,
-            check=False,
-        )
-    except (OSError, subprocess.TimeoutExpired):
-        return False
-    return proc.returncode == 0
-
-
 def select_variant(requested: str | None = None) -> str:
-    """Set and return the Mitsuba variant: ``requested``, else the first of :data:`VARIANTS`
-    that works on this machine.
+    """Set and return the Mitsuba variant: ``requested``, else the best that works here
+    (:func:`mcdenoise.render.scenes.ensure_variant`: cuda, then llvm, then scalar)."""
+    from mcdenoise.render.scenes import ensure_variant
 
-    Raises:
-        ValueError: ``requested`` is not compiled into this Mitsuba build, or nothing works.
-    """
-    import mitsuba as mi
-
-    if requested is not None:
-        if requested not in mi.variants():
-            raise ValueError(
-                f"Mitsuba variant {requested!r} is not available; this build has "
-                f"{', '.join(mi.variants())}"
-            )
-        mi.set_variant(requested)
-        return requested
-    if mi.variant() in VARIANTS:
-        return str(mi.variant())
-    for variant in VARIANTS:
-        if variant in mi.variants() and variant_works(variant):
-            mi.set_variant(variant)
-            return variant
-    raise ValueError(f"none of the Mitsuba variants {', '.join(VARIANTS)} works here")
+    return ensure_variant(requested or "auto")
 
 
 # --------------------------------------------------------------------------------------------
@@ -162,14 +105,9 @@ def _floor(size: float, bsdf: dict[str, Any], y: float = 0.0) -> dict[str, Any]:
 
 
 def _integrator(max_depth: int) -> dict[str, Any]:
-    return {
-        "type": "moment",
-        _AOV_NAME: {
-            "type": "aov",
-            "aovs": AOVS,
-            _PATH_NAME: {"type": "path", "max_depth": max_depth},
-        },
-    }
+    from mcdenoise.render.moments import moment_integrator
+
+    return moment_integrator({"type": "path", "max_depth": max_depth}, FEATURES)
 
 
 def _film(size: int) -> dict[str, Any]:
@@ -472,86 +410,20 @@ def load_scene(name: str, size: int = DEFAULT_SIZE) -> Any:
 # --------------------------------------------------------------------------------------------
 # Rendering
 # --------------------------------------------------------------------------------------------
-@dataclass
-class Moments:
-    """Per-pixel first and second sample moments of one or more renders.
+def _as_arrays(moments: Any) -> dict[str, np.ndarray]:
+    from mcdenoise.render.moments import buffers_from_moments
 
-    ``m1[name]`` and ``m2[name]`` are float64 ``(C, H, W)`` means over ``spp`` samples of
-    the value and of its square, for every buffer of :data:`CHANNELS`.
-    """
-
-    m1: dict[str, np.ndarray]
-    m2: dict[str, np.ndarray]
-    spp: int
-
-    def merge(self, other: Moments) -> Moments:
-        """The moments of the union of both sample sets (spp-weighted means)."""
-        n = self.spp + other.spp
-        a, b = self.spp / n, other.spp / n
-        return Moments(
-            {k: a * self.m1[k] + b * other.m1[k] for k in self.m1},
-            {k: a * self.m2[k] + b * other.m2[k] for k in self.m2},
-            n,
-        )
-
-
-def film_channels(scene: Any) -> tuple[list[str], np.ndarray]:
-    """Channel names and developed pixels ``(H, W, C)`` float32 of the scene's first film."""
-    bitmap = scene.sensors()[0].film().bitmap(raw=False)
-    struct = bitmap.struct_()
-    names = [struct[i].name for i in range(bitmap.channel_count())]
-    return names, np.array(bitmap, dtype=np.float32, copy=True)
-
-
-def render_moments(scene: Any, spp: int, seed: int) -> Moments:
-    """Render ``scene`` once at ``spp`` with ``seed`` and return the moments of every buffer.
-
-    Channels are looked up by name in the developed film (see :data:`CHANNELS`); a missing
-    channel raises ``KeyError`` listing what the film has.
-    """
-    import mitsuba as mi
-
-    if spp < 1:
-        raise ValueError(f"spp must be >= 1, got {spp}")
-    mi.render(scene, spp=spp, seed=seed)
-    names, pixels = film_channels(scene)
-    index = {n: i for i, n in enumerate(names)}
-    m1: dict[str, np.ndarray] = {}
-    m2: dict[str, np.ndarray] = {}
-    for buf, chans in CHANNELS.items():
-        missing = [c for c in chans for p in ("", "m2_") if p + c not in index]
-        if missing:
-            raise KeyError(
-                f"film has no channel(s) {', '.join(missing)}; it has {', '.join(names)}"
-            )
-        m1[buf] = np.stack([pixels[..., index[c]] for c in chans]).astype(np.float64)
-        m2[buf] = np.stack([pixels[..., index["m2_" + c]] for c in chans]).astype(np.float64)
-    return Moments(m1, m2, spp)
-
-
-def buffers_from_moments(moments: Moments) -> dict[str, np.ndarray]:
-    """Buffers and their variances of the mean from ``moments``, float32 ``(C, H, W)``.
-
-    ``<name>_var = max(0, (m2 - m1**2) / (spp - 1))``, the unbiased estimate of the variance
-    of the mean of i.i.d. samples (0 when ``spp == 1``: no estimate is possible then).
-    """
-    out: dict[str, np.ndarray] = {}
-    denom = moments.spp - 1
-    for name in CHANNELS:
-        m1 = moments.m1[name]
-        out[name] = m1.astype(np.float32)
-        if denom > 0:
-            var = np.maximum((moments.m2[name] - m1 * m1) / denom, 0.0)
-        else:
-            var = np.zeros_like(m1)
-        out[name + "_var"] = var.astype(np.float32)
-    return out
+    fb = buffers_from_moments(moments)
+    return {name: fb[name].numpy() for name in fb.names()}
 
 
 def render_buffers(scene: Any, spp: int, seed: int) -> dict[str, np.ndarray]:
     """One render of ``scene``: ``color``, ``albedo``, ``normal``, ``depth``, ``position`` and
-    their ``_var`` (variance of the mean), float32 ``(C, H, W)``; colour in linear HDR RGB."""
-    return buffers_from_moments(render_moments(scene, spp, seed))
+    their ``_var`` (variance of the mean), float32 ``(C, H, W)``; colour in linear HDR RGB.
+    The estimator is the library's (:mod:`mcdenoise.render.moments`)."""
+    from mcdenoise.render.moments import render_moments
+
+    return _as_arrays(render_moments(scene, spp, seed, FEATURES))
 
 
 def reference_seeds(first_seed: int, spp: int, pass_spp: int) -> list[tuple[int, int]]:
@@ -571,12 +443,14 @@ def render_reference(
     Returns the same buffers as :func:`render_buffers`, with variances over all ``spp``
     samples (merged moments accumulated in float64).
     """
-    total: Moments | None = None
+    from mcdenoise.render.moments import render_moments
+
+    total = None
     for seed, n in reference_seeds(first_seed, spp, pass_spp):
-        m = render_moments(scene, n, seed)
+        m = render_moments(scene, n, seed, FEATURES)
         total = m if total is None else total.merge(m)
     assert total is not None
-    return buffers_from_moments(total)
+    return _as_arrays(total)
 
 
 # --------------------------------------------------------------------------------------------
@@ -868,7 +742,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--variant",
         default=None,
-        help=f"Mitsuba variant (default: first working of {', '.join(VARIANTS)})",
+        help="Mitsuba variant (default: the best that works: cuda, llvm, scalar)",
     )
     parser.add_argument("--scenes", nargs="+", choices=list(SCENES), default=list(SCENES))
     parser.add_argument("--size", type=int, default=DEFAULT_SIZE, help="image width = height")

@@ -45,48 +45,7 @@ def mitsuba_variant(ms: ModuleType) -> str:
     return ms.select_variant(None)
 
 
-# --- the estimator itself, on synthetic samples (no Mitsuba) ---------------------------------
-def _moments(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(m1, m2) over axis 0 of ``samples`` (S, C, H, W), like the film's per-pixel means."""
-    return samples.mean(axis=0), (samples**2).mean(axis=0)
-
-
-def test_variance_of_mean_is_unbiased_sample_variance_over_n(ms: ModuleType) -> None:
-    rng = np.random.default_rng(0)
-    spp = 4
-    samples = rng.exponential(2.0, size=(spp, 3, 5, 7))
-    m1, m2 = _moments(samples)
-    buffers = ms.buffers_from_moments(
-        ms.Moments({n: m1 for n in ms.CHANNELS}, {n: m2 for n in ms.CHANNELS}, spp)
-    )
-    expected = samples.var(axis=0, ddof=1) / spp
-    np.testing.assert_allclose(buffers["color_var"], expected, rtol=1e-5)
-    np.testing.assert_allclose(buffers["color"], m1, rtol=1e-6)
-    assert buffers["color"].dtype == np.float32 and buffers["color_var"].dtype == np.float32
-
-
-def test_round_off_negative_variance_is_clamped_and_one_sample_gives_zero(ms: ModuleType) -> None:
-    m1 = np.full((3, 2, 2), 3.0)
-    m2 = m1 * m1 - 1e-7  # what float32 round-off does to a constant pixel
-    moments = ms.Moments({n: m1 for n in ms.CHANNELS}, {n: m2 for n in ms.CHANNELS}, 16)
-    assert float(ms.buffers_from_moments(moments)["normal_var"].min()) == 0.0
-    one = ms.Moments({n: m1 for n in ms.CHANNELS}, {n: m1 * m1 + 5 for n in ms.CHANNELS}, 1)
-    assert not ms.buffers_from_moments(one)["color_var"].any()
-
-
-def test_merged_moments_equal_moments_of_pooled_samples(ms: ModuleType) -> None:
-    rng = np.random.default_rng(1)
-    a = rng.normal(1.0, 2.0, size=(128, 3, 4, 4))
-    b = rng.normal(1.0, 2.0, size=(64, 3, 4, 4))
-    ma = ms.Moments(*(dict.fromkeys(ms.CHANNELS, x) for x in _moments(a)), 128)
-    mb = ms.Moments(*(dict.fromkeys(ms.CHANNELS, x) for x in _moments(b)), 64)
-    merged = ma.merge(mb)
-    pooled_m1, pooled_m2 = _moments(np.concatenate([a, b]))
-    assert merged.spp == 192
-    np.testing.assert_allclose(merged.m1["color"], pooled_m1, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(merged.m2["color"], pooled_m2, rtol=1e-12)
-
-
+# --- the script's own helpers (the estimator is the library's: tests/render/test_generate.py)
 @pytest.mark.parametrize(("spp", "pass_spp"), [(1024, 128), (1000, 128), (5, 128), (16384, 100)])
 def test_reference_passes_cover_spp_with_distinct_seeds(
     ms: ModuleType, spp: int, pass_spp: int
@@ -166,8 +125,10 @@ def test_missing_film_channel_is_named(ms: ModuleType, mitsuba_variant: str) -> 
 
     scene_dict = ms.build_scene("cornell", 8)
     scene_dict["integrator"]["inner"]["aovs"] = "albedo:albedo,normal:sh_normal"
-    with pytest.raises(KeyError, match=r"inner\.depth\.T.*it has .*inner\.albedo\.R"):
-        ms.render_moments(mi.load_dict(scene_dict), 1, 0)
+    from mcdenoise.errors import InputError
+
+    with pytest.raises(InputError, match=r"inner\.depth\.T.*it has .*inner\.albedo\.R"):
+        ms.render_buffers(mi.load_dict(scene_dict), 1, 0)
 
 
 def test_unknown_scene_is_rejected(ms: ModuleType) -> None:
