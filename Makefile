@@ -16,13 +16,15 @@ STAMP  := $(VENV)/.mcdenoise-installed
 install: $(STAMP)
 
 $(STAMP): pyproject.toml
+	@$(MAKE) --no-print-directory system-deps
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q $(TORCH)
 	$(BIN)/python -m pip install -q -e '.[all]'
 	@touch $@
 
-# Optional: Debian's libllvm19 makes Mitsuba's fast llvm_ad_rgb variant work (3-6x scalar_rgb).
+# Debian's libllvm19 makes Mitsuba's fast llvm_ad_rgb variant work (3-6x scalar_rgb); run by
+# `make install` (once per install) and by .ci/run; without root or apt it prints a note.
 system-deps:
 	@if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
 	  apt-get install -y -q libllvm19 >/dev/null 2>&1 || \
