@@ -35,6 +35,13 @@ from tqdm import tqdm
     help="Override a method parameter (repeatable), e.g. -p radius=7.",
 )
 @click.option(
+    "--model",
+    "model",
+    default=None,
+    metavar="PATH",
+    help="Trained model (run folder or model file) for a learned method; same as -p model=PATH.",
+)
+@click.option(
     "--device",
     type=click.Choice(["auto", "cpu", "cuda"]),
     default="auto",
@@ -52,7 +59,19 @@ from tqdm import tqdm
 )
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON record per output.")
 def denoise(
-    inputs, output, method, params, device, profile, mapping, part, spp, half, compression, as_json
+    inputs,
+    output,
+    method,
+    params,
+    model,
+    device,
+    profile,
+    mapping,
+    part,
+    spp,
+    half,
+    compression,
+    as_json,
 ):
     """Denoise INPUTS (EXR files or folders of them) and write EXR outputs.
 
@@ -65,8 +84,19 @@ def denoise(
     from mcdenoise.io.buffers import MissingFeatureError
 
     files = dn.collect_inputs(inputs)
+    if model is not None and method == "auto":
+        from mcdenoise.models.weights import load_kalantari
+
+        method = f"kalantari-{load_kalantari(model).card.kind}"  # the model says which method
     chosen = dn.parse_methods(method)
     overrides = dn.params_from_strings(params)
+    if model is not None:
+        learned = [m.name for m in chosen if "model" in m.defaults]
+        if len(chosen) != 1 or not learned:
+            raise click.UsageError(
+                "--model needs exactly one learned --method (e.g. --method kalantari-xbf)"
+            )
+        overrides["model"] = model
     if overrides and len(chosen) != 1:
         raise click.UsageError("--param needs exactly one --method")
     for m in chosen:

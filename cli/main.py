@@ -75,13 +75,14 @@ def main() -> None:
 
 
 def _register() -> None:
-    from mcdenoise_cli import denoise_cmd, eval_cmd, info_cmd, render_cmd
+    from mcdenoise_cli import denoise_cmd, eval_cmd, info_cmd, render_cmd, train_cmd
 
     main.add_command(denoise_cmd.denoise)
     main.add_command(denoise_cmd.methods_cmd)
     main.add_command(info_cmd.info)
     main.add_command(eval_cmd.eval_cmd)
     main.add_command(render_cmd.render)
+    main.add_command(train_cmd.train)
 
 
 _register()

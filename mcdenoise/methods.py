@@ -7,6 +7,10 @@ nlm                variance-normalised non-local means with feature weights    2
                    (Rousselle 2012/2013), albedo-demodulated
 cross-bilateral    cross-bilateral filter with Kalantari 2015 terms, fixed     10
                    default bandwidths (alias ``xbf``)
+kalantari-xbf      cross-bilateral filter whose per-pixel bandwidths a small       5
+                   MLP predicts from local features (Kalantari 2015); ``model``
+                   = a run folder or model file, default the shipped weights
+kalantari-nlm      the same for non-local means (per-pixel k and feature k_f)      5
 oidn               Intel Open Image Denoise (pyoidn), colour + albedo +        0
                    normal; a peer to compare with, never the default
 =================  ==========================================================  ========
@@ -24,11 +28,15 @@ from typing import Any
 import torch
 
 from mcdenoise.baselines.oidn import oidn_denoise, unavailable_reason
+from mcdenoise.errors import InputError
 from mcdenoise.filters.prepare import NlmSettings, XbfSettings, denoise_nlm, denoise_xbf
 from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.models.weights import load_kalantari, shipped_model_path
 from mcdenoise.registry import Method, dataclass_defaults, register
 
 GUIDES = ("albedo", "normal", "depth", "position")
+#: ``model`` parameter value meaning "the weights shipped in the package".
+SHIPPED = "shipped"
 GUIDE_VARS = tuple(g + "_var" for g in GUIDES)
 
 
@@ -73,6 +81,36 @@ register(
     ),
     aliases=("xbf", "cross_bilateral"),
 )
+
+
+def _run_kalantari(kind: str):
+    def run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
+        name = str(params["model"])
+        model = load_kalantari(
+            shipped_model_path(f"kalantari-{kind}") if name in ("", SHIPPED) else name
+        )
+        if model.card.kind != kind:
+            raise InputError(
+                f"{params['model']}: is a kalantari-{model.card.kind} model, not kalantari-{kind}"
+            )
+        return model.to(device).denoise(b)
+
+    return run
+
+
+for _kind, _what in (("xbf", "cross-bilateral bandwidths"), ("nlm", "NLM k and feature k_f")):
+    register(
+        Method(
+            name=f"kalantari-{_kind}",
+            summary=f"{_what} predicted per pixel by an MLP (Kalantari 2015); -p model=RUN",
+            requires=("color", *GUIDES),
+            uses=("color_var", *GUIDE_VARS),
+            defaults={"model": SHIPPED},
+            run=_run_kalantari(_kind),
+            priority=5,
+        )
+    )
+
 register(
     Method(
         name="oidn",

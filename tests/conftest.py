@@ -44,3 +44,34 @@ def samples_dir() -> Path:
     """The shipped sample renders (data/samples): they are part of the repo, so never skipped."""
     assert any(SAMPLES.glob("*.exr")), f"sample renders missing from {SAMPLES}"
     return SAMPLES
+
+
+def make_tiny_dataset(folder: Path, size: int = 40, y0: int = 44, x0: int = 44) -> Path:
+    """A data set in the ``mcdenoise render`` layout cut from the shipped sample renders.
+
+    ``folder/<scene>.exr`` (parts ``spp4``, ``spp16``: ``size``² crops of the real renders,
+    every buffer) and ``folder/ref/<scene>.exr`` (the reference crop).
+    """
+    from mcdenoise.io import load_buffers, save_buffers
+    from mcdenoise.io.buffer_files import save_buffers_parts
+
+    (folder / "ref").mkdir(parents=True, exist_ok=True)
+    for ref in sorted((SAMPLES / "ref").glob("*.exr")):
+        scene = ref.stem
+        parts = {
+            f"spp{spp}": load_buffers(SAMPLES / f"{scene}_spp{spp}.exr").crop(y0, x0, size, size)
+            for spp in (4, 16)
+        }
+        for fb in parts.values():
+            fb.data_window = fb.display_window = (0, 0, size - 1, size - 1)
+        save_buffers_parts(folder / f"{scene}.exr", parts)
+        rb = load_buffers(ref).crop(y0, x0, size, size)
+        rb.data_window = rb.display_window = (0, 0, size - 1, size - 1)
+        save_buffers(folder / "ref" / f"{scene}.exr", rb)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """See :func:`make_tiny_dataset` (made once per test session)."""
+    return make_tiny_dataset(tmp_path_factory.mktemp("tiny-set"))

@@ -1,0 +1,85 @@
+"""``mcdenoise train``."""
+
+from __future__ import annotations
+
+import click
+
+
+@click.command()
+@click.option(
+    "--model",
+    "model",
+    default=None,
+    metavar="NAME",
+    help="Model to train: kalantari-xbf or kalantari-nlm (default: the config file's, "
+    "else kalantari-xbf).",
+)
+@click.option(
+    "--data",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Data set made by `mcdenoise render` (DIR/<id>.exr + DIR/ref/<id>.exr).",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False),
+    required=True,
+    help="Run folder (config.json, checkpoints/, latest, metrics.jsonl, model.pt).",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="TOML config file (keys of the [train] table, see the README).",
+)
+@click.option(
+    "-s",
+    "--set",
+    "overrides",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override a config key (repeatable), e.g. -s steps=2000 -s hidden=32,16.",
+)
+@click.option("--steps", type=click.IntRange(min=1), default=None, help="Shortcut for -s steps=N.")
+@click.option(
+    "--resume", is_flag=True, help="Continue the run in --out from its latest checkpoint."
+)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def train(model, data, out, config_file, overrides, steps, resume, quiet):
+    """Train a model on rendered data; the run folder can be resumed and used with --model."""
+    from pathlib import Path
+
+    from mcdenoise.errors import InputError
+    from mcdenoise.train.checkpoint import RunFolder
+    from mcdenoise.train.config import load_config
+    from mcdenoise.train.kalantari import train_kalantari
+
+    values: dict[str, str] = {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"--set expects KEY=VALUE, got {item!r}")
+        values[key.strip()] = value.strip()
+    if model is not None:
+        values["model"] = model
+    if data is not None:
+        values["data"] = data
+    if steps is not None:
+        values["steps"] = str(steps)
+    run = RunFolder(out)
+    if resume and config_file is None and run.exists():
+        # Resume from the folder alone: its resolved config, then the flags.
+        config_file = str(run.config_path)
+    cfg = load_config(config_file, values)
+    result, report = train_kalantari(cfg, out, resume=resume, progress=not quiet)
+    if report.skipped:
+        click.echo(report.summary(), err=True)
+    last = result.metrics[-1] if result.metrics else {}
+    ratio = last.get("val_ratio")
+    click.echo(
+        f"trained {cfg.model} for {result.steps} steps in {result.seconds:.0f} s; "
+        f"best validation relMSE {result.best_val_loss:.5g}"
+        + (f" (learned/fixed geometric mean {ratio:.3f})" if ratio is not None else "")
+    )
+    click.echo(f"model: {Path(out) / 'model.pt'}")

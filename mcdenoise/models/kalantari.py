@@ -1,0 +1,436 @@
+"""Learned per-pixel filter parameters: the Kalantari, Bako, Sen 2015 MLP.
+
+A small per-pixel MLP (1×1 convolutions) maps the features of :mod:`mcdenoise.models.features`
+to the bandwidths of a classical filter, and the filter does the denoising:
+
+``kind = "xbf"``
+    the cross-bilateral filter of :mod:`mcdenoise.filters.cross_bilateral`; outputs: the
+    spatial bandwidth α, the colour bandwidth β and one bandwidth γ_k per guide feature.
+``kind = "nlm"``
+    the non-local means of :mod:`mcdenoise.filters.nlm`; outputs: its ``k`` and one ``k_f``
+    per guide feature.
+
+Parametrisation. Every bandwidth is the tuned fixed-filter default
+(:class:`~mcdenoise.filters.prepare.XbfSettings` / ``NlmSettings``, the exact value
+:func:`~mcdenoise.filters.prepare.denoise_xbf` would use) times ``exp(o)``, with the network's
+log-offset ``o = B · tanh(raw / B)`` bounded by ``B = 3`` (a factor 20 either way). The last
+layer starts at zero, so the **untrained model is exactly the fixed-parameter filter**;
+training can only move away from it where that lowers the loss, positivity is built in, and
+a multiplicative offset treats a bandwidth of 0.02 (depth) and 8 px (space) alike. The
+filter runs on the same prepared inputs as the fixed pipeline (:func:`prepare_inputs`,
+albedo demodulation), so the comparison with the fixed filter is like for like.
+
+Model file (``torch.save`` of a dict, read with ``weights_only=True``)::
+
+    {"card": {format, kind, guides, guide_vars, features (FeatureStats dict), hidden,
+              outputs, bound, settings, training}, "state": state_dict}
+
+Loading checks the format version and that the features the code computes for the model's
+guide set are the ones stored (names and order); an input that lacks a guide the model was
+trained with is refused with a message naming it (:func:`check_inputs`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from mcdenoise import __version__
+from mcdenoise.errors import InputError
+from mcdenoise.filters.cross_bilateral import cross_bilateral
+from mcdenoise.filters.nlm import non_local_means
+from mcdenoise.filters.prepare import (
+    GUIDE_FEATURES,
+    FilterInputs,
+    NlmSettings,
+    XbfSettings,
+    _demodulate,
+    prepare_inputs,
+)
+from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
+from mcdenoise.models.features import (
+    FeatureStats,
+    check_feature_names,
+    compute_features,
+    feature_names,
+)
+from mcdenoise.train.checkpoint import CheckpointError, load_state, save_state
+
+#: Version of the model file layout.
+FORMAT = "mcdenoise.kalantari/1"
+#: Bound ``B`` of the log-offsets.
+BOUND = 3.0
+KINDS = ("xbf", "nlm")
+
+
+def settings_class(kind: str) -> type[XbfSettings] | type[NlmSettings]:
+    if kind not in KINDS:
+        raise InputError(f"unknown Kalantari filter kind {kind!r}; known: {', '.join(KINDS)}")
+    return XbfSettings if kind == "xbf" else NlmSettings
+
+
+def output_names(kind: str, guides: Sequence[str]) -> list[str]:
+    """Names of the predicted log-offsets, in channel order."""
+    head = ["spatial", "color"] if kind == "xbf" else ["k"]
+    return head + [g for g in GUIDE_FEATURES if g in guides]
+
+
+@dataclass
+class ModelCard:
+    """Everything needed to rebuild and check a model (JSON-able).
+
+    Attributes:
+        kind: ``"xbf"`` or ``"nlm"``.
+        guides: guide features the model uses (and requires), in :data:`GUIDE_FEATURES` order.
+        guide_vars: guides whose variance the model was trained with.
+        features: normalisation statistics (their ``names`` are the feature set).
+        hidden: hidden layer sizes of the MLP.
+        settings: the fixed-filter settings the offsets multiply (field -> value).
+        training: free-form description of the training run (data, steps, metrics).
+    """
+
+    kind: str
+    guides: list[str]
+    guide_vars: list[str]
+    features: FeatureStats
+    hidden: list[int]
+    settings: dict[str, Any] = field(default_factory=dict)
+    training: dict[str, Any] = field(default_factory=dict)
+    bound: float = BOUND
+    format: str = FORMAT
+
+    @property
+    def outputs(self) -> list[str]:
+        return output_names(self.kind, self.guides)
+
+    def filter_settings(self) -> XbfSettings | NlmSettings:
+        cls = settings_class(self.kind)
+        known = {f.name for f in dataclasses.fields(cls)}
+        values = {
+            k: (tuple(v) if isinstance(v, list) else v)
+            for k, v in self.settings.items()
+            if k in known
+        }
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["features"] = self.features.to_dict()
+        d["outputs"] = self.outputs
+        return json.loads(json.dumps(d))  # plain JSON types only (weights_only loading)
+
+    @staticmethod
+    def from_dict(d: Mapping[str, Any], what: str = "model file") -> ModelCard:
+        if d.get("format") != FORMAT:
+            raise InputError(f"{what}: format {d.get('format')!r} is not {FORMAT!r}")
+        try:
+            card = ModelCard(
+                kind=str(d["kind"]),
+                guides=list(d["guides"]),
+                guide_vars=list(d["guide_vars"]),
+                features=FeatureStats.from_dict(d["features"]),
+                hidden=[int(h) for h in d["hidden"]],
+                settings=dict(d.get("settings", {})),
+                training=dict(d.get("training", {})),
+                bound=float(d.get("bound", BOUND)),
+            )
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"{what}: incomplete model card ({err})") from None
+        settings_class(card.kind)
+        return card
+
+
+class KalantariNet(nn.Module):
+    """Per-pixel MLP: ``(B, F, H, W)`` normalised features -> ``(B, O, H, W)`` log-offsets."""
+
+    def __init__(self, n_in: int, hidden: Sequence[int], n_out: int, bound: float = BOUND) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        c = n_in
+        for h in hidden:
+            layers += [nn.Conv2d(c, h, 1), nn.ReLU()]
+            c = h
+        last = nn.Conv2d(c, n_out, 1)
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+        self.body = nn.Sequential(*layers, last)
+        self.bound = bound
+
+    def forward(self, z: Tensor) -> Tensor:
+        raw = self.body(z)  # (B, O, H, W)
+        return self.bound * torch.tanh(raw / self.bound)
+
+
+def _base_sigmas(
+    s: XbfSettings | NlmSettings, guides: Sequence[str], with_var: Sequence[str]
+) -> tuple[dict[str, float], dict[str, float]]:
+    """The fixed filter's per-feature bandwidths and normaliser floors (as ``_feature_args``)."""
+    raw = {
+        "albedo": s.sigma_albedo,
+        "normal": s.sigma_normal,
+        "depth": s.sigma_depth,
+        "position": s.sigma_position,
+    }
+    sig, floors = {}, {}
+    for g in guides:
+        floors[g] = raw[g] ** 2
+        normalised = g in with_var or s.feature_gradient
+        sig[g] = s.feature_scale if normalised else s.feature_scale * raw[g]
+    return sig, floors
+
+
+def filter_radius(s: XbfSettings | NlmSettings) -> int:
+    """Pixels of context one filtered pixel depends on (window, patches, feature gradients)."""
+    grad = 1 if s.feature_gradient else 0
+    if isinstance(s, XbfSettings):
+        return s.kernel_size // 2 + grad
+    return s.search_radius + s.patch_radius + grad
+
+
+class KalantariModel(nn.Module):
+    """Features -> MLP -> per-pixel bandwidths -> classical filter.
+
+    Args:
+        card: the model card (kind, guides, feature statistics, hidden sizes, settings).
+    """
+
+    def __init__(self, card: ModelCard) -> None:
+        super().__init__()
+        self.card = card
+        self.settings = card.filter_settings()
+        expected = feature_names(card.guides, card.guide_vars)
+        check_feature_names(card.features.names, expected, "model file", f"mcdenoise {__version__}")
+        self.net = KalantariNet(len(expected), card.hidden, len(card.outputs), card.bound)
+
+    # --- sizes ------------------------------------------------------------------------------
+    @property
+    def radius(self) -> int:
+        """Pixels of context a filtered pixel depends on (the training crop margin)."""
+        return filter_radius(self.settings)
+
+    # --- preparation (whole image) ------------------------------------------------------
+    def prepare(
+        self, buffers: FeatureBuffers, reference: Tensor | None = None
+    ) -> dict[str, Tensor]:
+        """The tensors :meth:`filter` needs for one image, ``{name: (C, H, W)}``.
+
+        Raises:
+            MissingFeatureError: the image lacks a guide the model was trained with.
+        """
+        check_inputs(self.card, buffers)
+        item = prepare_item(
+            buffers,
+            self.card.kind,
+            self.settings,
+            self.card.guides,
+            reference,
+            self.card.guide_vars,
+        )
+        return item
+
+    # --- forward -------------------------------------------------------------------------
+    def offsets(self, features: Tensor) -> Tensor:
+        """Log-offsets ``(B, O, H, W)`` from raw features ``(B, F, H, W)``."""
+        return self.net(self.card.features.normalize(features))
+
+    def filter(self, batch: Mapping[str, Tensor], offsets: Tensor | None = None) -> Tensor:
+        """Filtered, remodulated colour ``(B, 3, H, W)`` (linear HDR, >= 0) of a prepared batch.
+
+        Args:
+            batch: :meth:`prepare` output stacked to ``(B, C, H, W)``.
+            offsets: log-offsets to use instead of the network's (zeros: the fixed filter).
+        """
+        o = self.offsets(batch["features"]) if offsets is None else offsets
+        s = self.settings
+        guides = self.card.guides
+        with_var = [g for g in guides if f"fvar.{g}" in batch]
+        base, floors = _base_sigmas(s, guides, with_var)
+        feats = {g: batch[f"feat.{g}"] for g in guides}
+        fvars = {g: batch.get(f"fvar.{g}") for g in guides}
+        head = 2 if self.card.kind == "xbf" else 1
+        sig = {g: base[g] * torch.exp(o[:, head + i : head + i + 1]) for i, g in enumerate(guides)}
+        irr, var = batch["irr"], batch["irr_var"]
+        if self.card.kind == "xbf":
+            assert isinstance(s, XbfSettings)
+            out = cross_bilateral(
+                irr,
+                feats or None,
+                kernel_size=s.kernel_size,
+                sigma_spatial=s.sigma_spatial * torch.exp(o[:, 0:1]),
+                sigma_color=s.sigma_color * torch.exp(o[:, 1:2]),
+                sigma_features=sig,
+                color_var=var,
+                var_pair=s.var_pair,  # type: ignore[arg-type]
+                feature_vars=fvars,
+                feature_floor=floors,
+                feature_gradient=s.feature_gradient,
+            )
+        else:
+            assert isinstance(s, NlmSettings)
+            out = non_local_means(
+                irr,
+                search_radius=s.search_radius,
+                patch_radius=s.patch_radius,
+                k=s.k * torch.exp(o[:, 0:1]),
+                alpha=s.alpha,
+                color_var=var,
+                var_pair=s.var_pair,  # type: ignore[arg-type]
+                features=feats or None,
+                feature_k=sig,
+                feature_vars=fvars,
+                feature_floor=floors,
+                feature_gradient=s.feature_gradient,
+                combine=s.combine,  # type: ignore[arg-type]
+            )
+        return (out * batch["factor"]).clamp_min(0.0)
+
+    @torch.no_grad()
+    def denoise(self, buffers: FeatureBuffers, *, chunk_rows: int = 256) -> Tensor:
+        """Denoise one image; returns ``(3, H, W)`` float32 linear HDR colour."""
+        item = self.prepare(buffers)
+        batch = {k: v[None] for k, v in item.items()}
+        feats = batch["features"]
+        rows = [
+            self.offsets(feats[..., y : y + chunk_rows, :])
+            for y in range(0, feats.shape[-2], chunk_rows)
+        ]
+        out = self.filter(batch, torch.cat(rows, dim=-2))
+        return torch.nan_to_num(out[0], nan=0.0, posinf=0.0, neginf=0.0).float()
+
+    # --- files ---------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the model file atomically."""
+        save_state({"card": self.card.to_dict(), "state": self.state_dict()}, path)
+
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> KalantariModel:
+        """Read a model file (or the ``model.pt`` of a run folder).
+
+        Raises:
+            CheckpointError: missing/truncated file. InputError: wrong format or a feature set
+            that differs from what this version computes (the message names the difference).
+        """
+        p = Path(path)
+        if p.is_dir():
+            p = p / "model.pt"
+        state = load_state(p)
+        if "card" not in state or "state" not in state:
+            raise CheckpointError(f"{p}: not a Kalantari model file (no model card)")
+        card = ModelCard.from_dict(state["card"], what=str(p))
+        try:
+            model = KalantariModel(card)
+        except InputError as err:
+            raise InputError(f"{p}: {err}") from None
+        try:
+            model.load_state_dict(state["state"])
+        except RuntimeError as err:
+            first = str(err).splitlines()[0]
+            raise InputError(f"{p}: weights do not match the model card ({first})") from None
+        model.eval()
+        return model
+
+
+def check_inputs(card: ModelCard, buffers: FeatureBuffers) -> None:
+    """Refuse buffers without a guide (or guide variance) the model was trained with."""
+    missing = [g for g in card.guides if g not in buffers]
+    missing += [f"{g}_var" for g in card.guide_vars if g in buffers and f"{g}_var" not in buffers]
+    if missing:
+        raise MissingFeatureError(
+            missing,
+            sorted(buffers.buffers),
+            source=buffers.source,
+            needed_by=f"this Kalantari {card.kind} model (trained with {', '.join(card.guides)};"
+            " use the fixed filters nlm or cross-bilateral for such inputs)",
+        )
+
+
+def prepare_item(
+    buffers: FeatureBuffers,
+    kind: str,
+    settings: XbfSettings | NlmSettings,
+    guides: Sequence[str],
+    reference: Tensor | None = None,
+    guide_vars: Sequence[str] | None = None,
+) -> dict[str, Tensor]:
+    """Filter inputs and raw features of one image, ``{name: (C, H, W)}``.
+
+    ``guide_vars``: use the variances of these guides only (``None``: every one present), so
+    an input with more buffers than a model was trained with is seen as the model expects.
+
+    Keys: ``color`` (sanitised noisy colour), ``irr``/``irr_var`` (what the filter averages and
+    its variance), ``factor`` (remodulation, ones without albedo), ``feat.<g>``/``fvar.<g>``
+    (guides as :func:`prepare_inputs` normalises them), ``features`` (raw features), and
+    ``reference`` when given.
+    """
+    inp: FilterInputs = prepare_inputs(
+        buffers, features=tuple(guides), prefilter=settings.prefilter
+    )
+    missing = [g for g in guides if g not in inp.features]
+    if missing:  # e.g. position present but no usable scene extent
+        raise MissingFeatureError(
+            missing, sorted(buffers.buffers), source=buffers.source, needed_by="the Kalantari model"
+        )
+    if guide_vars is not None:
+        inp.feature_vars = {g: v for g, v in inp.feature_vars.items() if g in guide_vars}
+    irr, var, factor = _demodulate(inp, settings.demodulate, settings.albedo_eps)
+    feats, _ = compute_features(inp, irr, var, buffers.spp)
+    out = {
+        "color": inp.color[0],
+        "irr": irr[0],
+        "irr_var": var[0],
+        "factor": (factor if factor is not None else torch.ones_like(irr))[0],
+        "features": feats[0],
+    }
+    for g in guides:
+        out[f"feat.{g}"] = inp.features[g][0]
+        if g in inp.feature_vars:
+            out[f"fvar.{g}"] = inp.feature_vars[g][0]
+    if reference is not None:
+        out["reference"] = reference
+    return out
+
+
+def new_model(
+    kind: str,
+    guides: Sequence[str],
+    guide_vars: Sequence[str],
+    stats: FeatureStats,
+    hidden: Sequence[int],
+    settings: Mapping[str, Any] | None = None,
+) -> KalantariModel:
+    """An untrained model (= the fixed filter) for a guide set and feature statistics."""
+    cls = settings_class(kind)
+    base = dataclasses.asdict(cls(**dict(settings or {})))
+    base = {k: (list(v) if isinstance(v, tuple) else v) for k, v in base.items()}
+    card = ModelCard(
+        kind,
+        [g for g in GUIDE_FEATURES if g in guides],
+        list(guide_vars),
+        stats,
+        list(hidden),
+        base,
+    )
+    return KalantariModel(card)
+
+
+__all__ = [
+    "BOUND",
+    "FORMAT",
+    "KINDS",
+    "KalantariModel",
+    "KalantariNet",
+    "ModelCard",
+    "check_inputs",
+    "filter_radius",
+    "new_model",
+    "output_names",
+    "prepare_item",
+]

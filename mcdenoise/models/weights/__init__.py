@@ -1,0 +1,43 @@
+"""Shipped model weights and a cached loader.
+
+``kalantari-xbf.pt`` and ``kalantari-nlm.pt`` were trained by the commands in
+``data/recipes/kalantari.md`` on ``mcdenoise render`` data (seed 1000) that no reported
+evaluation uses. :func:`load_kalantari` accepts a model file or a run folder (its
+``model.pt``) and caches the loaded model per file and modification time.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+from mcdenoise.models.kalantari import KalantariModel
+from mcdenoise.train.checkpoint import CheckpointError
+
+WEIGHTS = Path(__file__).resolve().parent
+
+
+def shipped_model_path(name: str) -> Path:
+    """Path of the shipped weights of model ``name`` (e.g. ``kalantari-xbf``)."""
+    return WEIGHTS / f"{name}.pt"
+
+
+@functools.lru_cache(maxsize=8)
+def _load(path: str, mtime_ns: int) -> KalantariModel:
+    return KalantariModel.load(path)
+
+
+def load_kalantari(path: str | os.PathLike[str]) -> KalantariModel:
+    """The Kalantari model in ``path`` (a model file or a run folder), cached.
+
+    Raises:
+        CheckpointError: no such file/folder, or a truncated file. InputError: not a model
+        of a compatible feature set (the message names the difference).
+    """
+    p = Path(path)
+    if p.is_dir():
+        p = p / "model.pt"
+    if not p.is_file():
+        raise CheckpointError(f"{path}: no such model file or run folder (with model.pt)")
+    return _load(str(p.resolve()), p.stat().st_mtime_ns)

@@ -1,0 +1,217 @@
+"""Training configuration: a dataclass, loadable from TOML, overridable by ``key=value`` flags.
+
+A run folder always holds the *resolved* configuration (``config.json``: every field, after the
+file and the overrides were applied), so a run can be repeated or resumed from the folder alone.
+
+Example::
+
+    cfg = load_config("train.toml", overrides={"steps": "200", "lr": "1e-3"})
+    cfg.to_json()
+
+Fields are model-agnostic except ``model`` (which model to train, e.g. ``kalantari-xbf``) and
+``hidden`` (the model's hidden layer sizes); a model reads only the fields it needs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, get_type_hints
+
+from mcdenoise.errors import InputError
+
+#: Training losses a config may name.
+LOSSES = ("relmse", "log-relmse")
+
+
+@dataclass
+class TrainConfig:
+    """Everything a training run needs.
+
+    Attributes:
+        model: model name (``kalantari-xbf``, ``kalantari-nlm``).
+        data: folder of a data set made by ``mcdenoise render`` (``<id>.exr`` with parts
+            ``spp<n>`` and ``ref/<id>.exr``).
+        levels: spp levels (parts) to train on; empty = every level in the files.
+        val_fraction: share of *images* held out for validation (split by image, seeded).
+        max_images: use at most this many images (0 = all), chosen by the seeded split.
+        patch: edge of the square training patch whose loss is computed (pixels).
+        margin: context around the patch (the filter footprint), pixels on each side.
+        batch: patches per step.
+        steps: optimisation steps in total.
+        epoch_steps: steps between validations (one "epoch" here: the data set is sampled, not
+            iterated).
+        lr: peak Adam learning rate; warmed up linearly over ``warmup`` steps, then cosine
+            decayed to ``lr * lr_final`` at ``steps``.
+        warmup: warm-up steps.
+        lr_final: final learning rate as a fraction of ``lr``.
+        weight_decay: Adam(W) weight decay.
+        importance: share of patches drawn proportionally to the noisy input's error (the rest
+            uniformly); informative patches (edges, noise) are seen more often.
+        seed: seed of the split, the patch sampler and the model initialisation.
+        deterministic: ``torch.use_deterministic_algorithms(True)`` (CPU results are then
+            reproducible bit for bit for a given thread count).
+        threads: torch intra-op threads (0 = leave torch's default).
+        hidden: hidden layer sizes of the model's MLP.
+        kernel: filter window edge (odd; the cross-bilateral kernel or the NLM search window);
+            0 = the filter's default (21).
+        loss: ``relmse`` (mean over the batch's pixels) or ``log-relmse`` (mean over crops of
+            ``log(relMSE of the crop)``: every crop counts alike whatever its error level, as
+            in a geometric mean over images; plain relMSE is dominated by the noisiest crops).
+        guides: guide features the model uses (and will require at inference); images of
+            the data set without one of them are skipped and reported.
+        checkpoints_kept: how many checkpoints to keep in ``checkpoints/`` (the newest ones).
+        device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``.
+    """
+
+    model: str = "kalantari-xbf"
+    data: str = ""
+    levels: list[int] = field(default_factory=list)
+    val_fraction: float = 0.15
+    max_images: int = 0
+    patch: int = 48
+    margin: int = 10
+    batch: int = 8
+    steps: int = 1000
+    epoch_steps: int = 100
+    lr: float = 3e-3
+    warmup: int = 20
+    lr_final: float = 0.05
+    weight_decay: float = 0.0
+    importance: float = 0.5
+    seed: int = 0
+    deterministic: bool = True
+    threads: int = 0
+    hidden: list[int] = field(default_factory=lambda: [32])
+    kernel: int = 0
+    loss: str = "relmse"
+    guides: list[str] = field(default_factory=lambda: ["albedo", "normal", "depth", "position"])
+    checkpoints_kept: int = 3
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.patch >= 8, f"patch must be >= 8, got {self.patch}"),
+            (self.margin >= 0, f"margin must be >= 0, got {self.margin}"),
+            (self.batch >= 1, f"batch must be >= 1, got {self.batch}"),
+            (self.steps >= 1, f"steps must be >= 1, got {self.steps}"),
+            (self.epoch_steps >= 1, f"epoch_steps must be >= 1, got {self.epoch_steps}"),
+            (self.lr > 0, f"lr must be > 0, got {self.lr}"),
+            (
+                0 <= self.val_fraction < 1,
+                f"val_fraction must be in [0, 1), got {self.val_fraction}",
+            ),
+            (0 <= self.importance <= 1, f"importance must be in [0, 1], got {self.importance}"),
+            (0 < self.lr_final <= 1, f"lr_final must be in (0, 1], got {self.lr_final}"),
+            (all(h >= 1 for h in self.hidden), f"hidden sizes must be >= 1, got {self.hidden}"),
+            (all(v >= 1 for v in self.levels), f"levels must be spp >= 1, got {self.levels}"),
+            (self.checkpoints_kept >= 1, "checkpoints_kept must be >= 1"),
+            (
+                self.kernel == 0 or (self.kernel >= 3 and self.kernel % 2 == 1),
+                f"kernel must be 0 (default) or an odd size >= 3, got {self.kernel}",
+            ),
+            (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise InputError(message)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n"
+
+
+def _coerce(name: str, value: Any, kind: Any) -> Any:
+    """Convert a TOML/JSON value or a flag string to the field's type, or raise InputError."""
+    text = isinstance(value, str)
+    try:
+        if kind is bool:
+            if isinstance(value, bool):
+                return value
+            if text and value.lower() in ("1", "true", "yes", "on"):
+                return True
+            if text and value.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError
+        if kind is int:
+            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+                raise ValueError
+            return int(value)
+        if kind is float:
+            if isinstance(value, bool):
+                raise ValueError
+            return float(value)
+        if kind is str:
+            if not isinstance(value, str):
+                raise ValueError
+            return value
+        if kind == list[int]:
+            if text:
+                value = [v for v in value.replace(" ", "").split(",") if v]
+            if not isinstance(value, list):
+                raise ValueError
+            return [_coerce(name, v, int) for v in value]
+        if kind == list[str]:
+            if text:
+                value = [v for v in value.replace(" ", "").split(",") if v]
+            if not isinstance(value, list):
+                raise ValueError
+            return [_coerce(name, v, str) for v in value]
+    except (TypeError, ValueError):
+        pass
+    raise InputError(f"config key {name!r}: cannot use {value!r} (expected {_type_name(kind)})")
+
+
+def _type_name(kind: Any) -> str:
+    if kind == list[int]:
+        return "list of integers"
+    if kind == list[str]:
+        return "list of names"
+    return getattr(kind, "__name__", str(kind))
+
+
+def make_config(values: Mapping[str, Any], *, source: str = "config") -> TrainConfig:
+    """A :class:`TrainConfig` from a mapping (unknown keys are an :class:`InputError`)."""
+    hints = get_type_hints(TrainConfig)
+    names = [f.name for f in dataclasses.fields(TrainConfig)]
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise InputError(
+            f"{source}: unknown key(s) {', '.join(unknown)}; known: {', '.join(names)}"
+        )
+    return TrainConfig(**{k: _coerce(k, v, hints[k]) for k, v in values.items()})
+
+
+def load_config(
+    path: str | os.PathLike[str] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+) -> TrainConfig:
+    """Defaults, then the TOML (or JSON) file ``path``, then ``overrides`` (flag strings ok).
+
+    Raises:
+        InputError: unreadable file, TOML syntax error, unknown key or bad value.
+    """
+    values: dict[str, Any] = {}
+    source = "config"
+    if path is not None:
+        p = Path(path)
+        source = str(p)
+        try:
+            text = p.read_text()
+        except OSError as err:
+            raise InputError(f"{p}: cannot read config ({err.strerror or err})") from None
+        try:
+            values = json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
+        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as err:
+            raise InputError(f"{p}: {err}") from None
+        if "train" in values and isinstance(values["train"], dict):
+            values = dict(values["train"])
+    merged = {**values, **dict(overrides or {})}
+    return make_config(merged, source=source)

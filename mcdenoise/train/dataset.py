@@ -1,0 +1,350 @@
+"""Training patches from a data set rendered by ``mcdenoise render``.
+
+Layout read (see :mod:`mcdenoise.render.generate`): ``DIR/<id>.exr`` with one part per spp level
+(``spp4``, ``spp16``, ...) and the reference ``DIR/ref/<id>.exr``; sequences
+``DIR/<seq>/frame_NNNN.exr`` with ``DIR/<seq>/ref/frame_NNNN.exr``. Any EXR not under a ``ref``
+folder whose ``ref/<same name>`` exists is an input; single-part files are one level.
+
+Pipeline:
+
+1. :func:`scan_dataset` lists the (input, part, reference) triples; :func:`split_images`
+   splits them into training and validation **by image** (all levels and frames of an image
+   go to the same side), seeded.
+2. :func:`load_items` reads each level and its reference once and hands them to a model's
+   ``prepare(buffers, reference) -> {name: (C, H, W) tensor}`` hook (e.g. the filter input
+   preparation and per-pixel features, computed on the whole image so that a patch sees
+   exactly what the model sees at inference). Images that cannot be used are *reported* with
+   their file and reason, never silently dropped: NaN/Inf in the reference, a constant
+   reference, a missing buffer the model needs, an image smaller than a patch.
+3. :class:`PatchSampler` draws batches of ``patch + 2 margin`` crops. A share ``importance``
+   of the crops is drawn with probability proportional to the noisy input's mean relMSE over
+   the patch (noisy, high-error regions: edges, caustics, dark noisy corners), the rest
+   uniformly. Each crop comes with a loss ``mask``: the pixels whose filter footprint
+   (``margin`` pixels on each side) is the same in the crop as in the whole image -- the
+   crop's centre, plus the strips along the image's own borders. A filter of radius
+   ``<= margin`` gives the masked pixels exactly their whole-image values.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+from tqdm import tqdm
+
+from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.io import load_buffers
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.io.exr import probe_exr
+
+#: ε of relMSE (DESIGN.md), also used for the importance map.
+RELMSE_EPS = 1e-2
+
+#: Key of the reference colour in a prepared item.
+REFERENCE = "reference"
+
+Prepare = Callable[[FeatureBuffers, Tensor], dict[str, Tensor]]
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One noisy level of one image and its reference.
+
+    Attributes:
+        image: image id (relative path of the input without ``.exr``; the sequence folder
+            for frames, so frames split together).
+        path: the input EXR.
+        part: the part holding the level (``None`` for single-part files).
+        reference: the reference EXR.
+        spp: samples per pixel of the level, when known from the part name.
+    """
+
+    image: str
+    path: Path
+    part: str | None
+    reference: Path
+    spp: int | None
+
+    @property
+    def name(self) -> str:
+        return f"{self.path.name}" + (f"[{self.part}]" if self.part else "")
+
+
+def _spp_of(part: str | None) -> int | None:
+    if part and part.startswith("spp") and part[3:].isdigit():
+        return int(part[3:])
+    return None
+
+
+def scan_dataset(root: str | os.PathLike[str], levels: Sequence[int] = ()) -> list[Entry]:
+    """Every (input level, reference) pair under ``root``, sorted by path then spp.
+
+    Args:
+        root: folder written by ``mcdenoise render``.
+        levels: keep only these spp levels (empty: all).
+
+    Raises:
+        InputError: ``root`` is not a folder, or holds no input with a reference.
+    """
+    base = Path(root)
+    if not base.is_dir():
+        raise InputError(f"{base}: not a folder (expected a data set made by mcdenoise render)")
+    entries: list[Entry] = []
+    for path in sorted(base.rglob("*.exr")):
+        rel = path.relative_to(base)
+        if "ref" in rel.parts[:-1] or path.name.startswith("."):
+            continue
+        ref = path.parent / "ref" / path.name
+        if not ref.is_file():
+            continue
+        image = str(rel.parent) if rel.parent != Path(".") else rel.stem
+        parts = [p.name for p in probe_exr(path)]
+        named = [p for p in parts if _spp_of(p) is not None]
+        for part in named or [None]:  # type: ignore[list-item]
+            spp = _spp_of(part)
+            if levels and spp not in levels:
+                continue
+            entries.append(Entry(image, path, part, ref, spp))
+    if not entries:
+        wanted = f" at spp {list(levels)}" if levels else ""
+        raise InputError(f"{base}: no input EXR with a ref/<name>.exr reference{wanted}")
+    return sorted(entries, key=lambda e: (str(e.path), e.spp or 0))
+
+
+def split_images(
+    entries: Sequence[Entry], val_fraction: float, seed: int, max_images: int = 0
+) -> tuple[list[Entry], list[Entry]]:
+    """(train, validation) entries, split by image id with a seeded permutation.
+
+    With at least two images and ``val_fraction > 0`` the validation side gets at least one.
+    ``max_images`` (> 0) keeps only that many images (the first of the permutation).
+    """
+    images = sorted({e.image for e in entries})
+    g = torch.Generator().manual_seed(seed)
+    order = [images[i] for i in torch.randperm(len(images), generator=g).tolist()]
+    if max_images > 0:
+        order = order[:max_images]
+    n_val = round(len(order) * val_fraction)
+    if val_fraction > 0 and len(order) >= 2:
+        n_val = min(max(1, n_val), len(order) - 1)
+    val = set(order[:n_val])
+    train = set(order[n_val:])
+    return [e for e in entries if e.image in train], [e for e in entries if e.image in val]
+
+
+@dataclass
+class Item:
+    """A prepared level: the model's tensors ``(C, H, W)`` (with :data:`REFERENCE`)."""
+
+    entry: Entry
+    tensors: dict[str, Tensor]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        h, w = self.tensors[REFERENCE].shape[-2:]
+        return int(h), int(w)
+
+
+@dataclass
+class LoadReport:
+    """What :func:`load_items` used and what it skipped (file and reason per skipped level)."""
+
+    used: int = 0
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+
+    def summary(self) -> str:
+        lines = [f"{self.used} level(s) used, {len(self.skipped)} skipped"]
+        lines += [f"  skipped {name}: {why}" for name, why in self.skipped]
+        return "\n".join(lines)
+
+
+def check_reference(ref: Tensor) -> str | None:
+    """Why a reference colour ``(3, H, W)`` cannot be trained on, or ``None``."""
+    bad = int((~torch.isfinite(ref)).sum())
+    if bad:
+        return f"reference has {bad} NaN/Inf values"
+    if float(ref.max() - ref.min()) == 0.0:
+        return "reference is constant"
+    return None
+
+
+def load_items(
+    entries: Sequence[Entry],
+    prepare: Prepare,
+    *,
+    min_size: int = 1,
+    progress: bool = False,
+) -> tuple[list[Item], LoadReport]:
+    """Read and prepare every entry; unusable ones are reported, not raised.
+
+    Args:
+        entries: from :func:`scan_dataset`.
+        prepare: model hook ``(buffers, reference (3, H, W)) -> {name: (C, H, W)}``; it may raise
+            :class:`~mcdenoise.errors.McdenoiseError` (e.g. a missing buffer) to skip a level.
+        min_size: smallest acceptable image edge (patch + margins).
+        progress: show a tqdm bar.
+    """
+    report = LoadReport()
+    items: list[Item] = []
+    refs: dict[Path, Tensor] = {}
+    keys: tuple[str, ...] | None = None
+    for e in tqdm(entries, desc="loading", unit="level", disable=not progress, leave=False):
+        try:
+            if e.reference not in refs:
+                refs = {e.reference: load_buffers(e.reference)["color"]}
+            ref = refs[e.reference]
+            why = check_reference(ref)
+            if why is None:
+                buffers = load_buffers(e.path, part=e.part)
+                if tuple(buffers["color"].shape) != tuple(ref.shape):
+                    why = f"size {tuple(buffers['color'].shape[1:])} != reference {tuple(ref.shape[1:])}"
+                elif min(ref.shape[1:]) < min_size:
+                    why = f"smaller than a training crop ({min_size} px)"
+            if why is not None:
+                report.skipped.append((e.name, why))
+                continue
+            tensors = prepare(buffers, ref)
+        except McdenoiseError as err:
+            report.skipped.append((e.name, str(err)))
+            continue
+        bad = [k for k, v in tensors.items() if not bool(torch.isfinite(v).all())]
+        if bad:
+            report.skipped.append((e.name, f"non-finite values after preparation in {bad}"))
+            continue
+        if keys is None:
+            keys = tuple(sorted(tensors))
+        elif tuple(sorted(tensors)) != keys:
+            report.skipped.append((e.name, f"buffers {sorted(tensors)} differ from {list(keys)}"))
+            continue
+        items.append(Item(e, {k: v.float().contiguous() for k, v in tensors.items()}))
+    report.used = len(items)
+    return items, report
+
+
+def error_map(noisy: Tensor, reference: Tensor) -> Tensor:
+    """Per-pixel relMSE ``(H, W)`` of a noisy colour ``(3, H, W)`` against the reference."""
+    x = torch.nan_to_num(noisy, nan=0.0, posinf=0.0, neginf=0.0)
+    return ((x - reference).square() / (reference.square() + RELMSE_EPS)).mean(0)
+
+
+class PatchSampler:
+    """Seeded batches of crops from prepared items, with loss masks.
+
+    Args:
+        items: prepared levels (same tensor names, any sizes >= ``patch + 2 margin``).
+        patch: edge of the crop's centre (the loss region away from image borders).
+        margin: context on each side (>= the model's filter radius).
+        importance: share of crops drawn ∝ the noisy error of the patch (key ``noisy_key``).
+        noisy_key: tensor holding the noisy colour used for the importance map.
+    """
+
+    def __init__(
+        self,
+        items: Sequence[Item],
+        *,
+        patch: int,
+        margin: int,
+        importance: float = 0.5,
+        noisy_key: str = "color",
+    ) -> None:
+        if not items:
+            raise InputError("no usable training images (see the loading report)")
+        self.items = list(items)
+        self.patch, self.margin = patch, margin
+        self.crop = patch + 2 * margin
+        self.importance = importance
+        small = [it.entry.name for it in self.items if min(it.size) < self.crop]
+        if small:
+            raise InputError(f"images smaller than the {self.crop}-px crop: {', '.join(small[:3])}")
+        # Importance: mean error of every crop position (a box filter of the error map).
+        self._cdf_image: Tensor
+        weights, self._cdf_pos = [], []
+        for it in self.items:
+            err = error_map(it.tensors[noisy_key], it.tensors[REFERENCE])[None, None]
+            pooled = F.avg_pool2d(err, self.crop, stride=1)[0, 0]  # (H-c+1, W-c+1)
+            pooled = torch.nan_to_num(pooled, nan=0.0).clamp_min(0).double()
+            total = float(pooled.sum())
+            weights.append(total / pooled.numel())
+            self._cdf_pos.append(pooled.flatten().cumsum(0) / max(total, 1e-300))
+        w = torch.tensor(weights, dtype=torch.float64)
+        self._cdf_image = (w / w.sum()).cumsum(0) if float(w.sum()) > 0 else None  # type: ignore[assignment]
+
+    def _position(self, i: int, g: torch.Generator, weighted: bool) -> tuple[int, int]:
+        h, w = self.items[i].size
+        span_x = w - self.crop + 1
+        if weighted:
+            u = torch.rand((), generator=g, dtype=torch.float64)
+            k = int(torch.searchsorted(self._cdf_pos[i], u).clamp_max(self._cdf_pos[i].numel() - 1))
+            return divmod(k, span_x)
+        y = int(torch.randint(h - self.crop + 1, (), generator=g))
+        x = int(torch.randint(span_x, (), generator=g))
+        return y, x
+
+    def mask(self, y: int, x: int, size: tuple[int, int]) -> Tensor:
+        """Loss mask ``(1, crop, crop)`` of the crop at ``(y, x)`` in an image of ``size``."""
+        h, w = size
+        c, m = self.crop, self.margin
+        rows = torch.zeros(c, dtype=torch.bool)
+        cols = torch.zeros(c, dtype=torch.bool)
+        rows[0 if y == 0 else m : c if y + c == h else c - m] = True
+        cols[0 if x == 0 else m : c if x + c == w else c - m] = True
+        return (rows[:, None] & cols[None, :]).float()[None]
+
+    def batch(self, size: int, g: torch.Generator) -> dict[str, Tensor]:
+        """``size`` crops: every tensor ``(B, C, crop, crop)``, plus ``mask`` ``(B, 1, ...)``."""
+        out: dict[str, list[Tensor]] = {}
+        for _ in range(size):
+            weighted = self._cdf_image is not None and bool(
+                torch.rand((), generator=g) < self.importance
+            )
+            if weighted:
+                u = torch.rand((), generator=g, dtype=torch.float64)
+                i = int(torch.searchsorted(self._cdf_image, u).clamp_max(len(self.items) - 1))
+            else:
+                i = int(torch.randint(len(self.items), (), generator=g))
+            y, x = self._position(i, g, weighted)
+            it = self.items[i]
+            for k, v in it.tensors.items():
+                out.setdefault(k, []).append(v[:, y : y + self.crop, x : x + self.crop])
+            out.setdefault("mask", []).append(self.mask(y, x, it.size))
+        return {k: torch.stack(v) for k, v in out.items()}
+
+
+def masked_relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
+    """relMSE ``mean((x - r)² / (r² + ε))`` over the masked pixels, ε = 0.01.
+
+    Args:
+        output, reference: ``(B, 3, H, W)`` linear HDR colour.
+        mask: ``(B, 1, H, W)`` 0/1 weights, or ``None`` for every pixel.
+    """
+    err = (output - reference).square() / (reference.square() + RELMSE_EPS)
+    if mask is None:
+        return err.mean()
+    return (err * mask).sum() / (mask.sum() * output.shape[1]).clamp_min(1.0)
+
+
+def crop_log_relmse(output: Tensor, reference: Tensor, mask: Tensor, floor: float = 1e-6) -> Tensor:
+    """Mean over the batch of ``log(floor + relMSE of each crop's masked pixels)``."""
+    err = (output - reference).square() / (reference.square() + RELMSE_EPS)
+    per = (err * mask).sum((1, 2, 3)) / (mask.sum((1, 2, 3)) * output.shape[1]).clamp_min(1.0)
+    return torch.log(per + floor).mean()
+
+
+def image_relmse(output: Tensor, reference: Tensor) -> float:
+    """relMSE of one image ``(3, H, W)`` (or batch) as a Python float."""
+    return float(masked_relmse(output.double(), reference.double()))
+
+
+def geometric_mean(values: Sequence[float]) -> float:
+    """Geometric mean of positive values (0 if any is 0, nan for an empty list)."""
+    if not values:
+        return math.nan
+    if min(values) <= 0:
+        return 0.0
+    return math.exp(sum(math.log(v) for v in values) / len(values))

@@ -1,0 +1,198 @@
+"""Training the Kalantari 2015 models (``kalantari-xbf``, ``kalantari-nlm``) end to end.
+
+The loss is relMSE (ε = 0.01) between the filtered, remodulated colour and the reference,
+on the masked centre of each crop (:class:`~mcdenoise.train.dataset.PatchSampler`); its
+gradient flows through the filter (weights, per-pixel bandwidths) into the MLP. Every level
+of the data set (e.g. 4, 16 and 64 spp) is trained on together: the ``spp`` and noise-level
+features tell the network which it is looking at.
+
+Validation runs the model on the *whole* validation images (never trained on: the split is
+by image) and reports their mean relMSE (``val_loss``, which picks the exported model), the
+geometric mean, the same for the fixed-parameter filter (the untrained model) and the ratio
+learned / fixed, per spp level too.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from mcdenoise.errors import InputError
+from mcdenoise.filters.prepare import GUIDE_FEATURES
+from mcdenoise.models.features import FeatureStats, feature_names
+from mcdenoise.models.kalantari import (
+    KalantariModel,
+    filter_radius,
+    new_model,
+    prepare_item,
+    settings_class,
+)
+from mcdenoise.train.checkpoint import RunFolder
+from mcdenoise.train.config import TrainConfig
+from mcdenoise.train.dataset import (
+    Item,
+    LoadReport,
+    PatchSampler,
+    crop_log_relmse,
+    geometric_mean,
+    image_relmse,
+    load_items,
+    masked_relmse,
+    scan_dataset,
+    split_images,
+)
+from mcdenoise.train.loop import TrainResult, setup_torch, train
+
+#: Trainable model names -> filter kind.
+MODELS = {"kalantari-xbf": "xbf", "kalantari-nlm": "nlm"}
+#: Pixel stride of the samples the normalisation statistics are computed from.
+STATS_STRIDE = 4
+
+
+def _batch(item: Item) -> dict[str, Tensor]:
+    return {k: v[None] for k, v in item.tensors.items()}
+
+
+class KalantariTask:
+    """A :class:`~mcdenoise.train.loop.Task` for a Kalantari model.
+
+    Args:
+        model: the model to train (its card's ``training`` field is filled on export).
+        val_items: prepared validation levels (whole images).
+        description: what to record about the training data in the model card.
+    """
+
+    def __init__(
+        self,
+        model: KalantariModel,
+        val_items: Sequence[Item],
+        description: dict[str, Any],
+        loss: str = "relmse",
+    ) -> None:
+        self.loss_name = loss
+        self.module = model
+        self.model = model
+        self.val_items = list(val_items)
+        self.description = description
+        self._fixed: list[float] | None = None
+        self.last_val: dict[str, float] = {}
+
+    def loss(self, batch: dict[str, Tensor]) -> Tensor:
+        out = self.model.filter(batch)
+        if self.loss_name == "log-relmse":
+            return crop_log_relmse(out, batch["reference"], batch["mask"])
+        return masked_relmse(out, batch["reference"], batch["mask"])
+
+    def _errors(self, fixed: bool) -> list[float]:
+        errs = []
+        for it in self.val_items:
+            b = _batch(it)
+            off = None
+            if fixed:
+                off = torch.zeros((1, len(self.model.card.outputs), *it.size), dtype=b["irr"].dtype)
+            errs.append(image_relmse(self.model.filter(b, off)[0], it.tensors["reference"]))
+        return errs
+
+    def validate(self) -> dict[str, float]:
+        if not self.val_items:
+            return {}
+        if self._fixed is None:
+            self._fixed = self._errors(fixed=True)
+        learned = self._errors(fixed=False)
+        res: dict[str, float] = {
+            "val_loss": sum(learned) / len(learned),
+            "val_geomean": geometric_mean(learned),
+            "val_fixed_loss": sum(self._fixed) / len(self._fixed),
+            "val_fixed_geomean": geometric_mean(self._fixed),
+        }
+        res["val_ratio"] = res["val_geomean"] / res["val_fixed_geomean"]
+        for spp in sorted({it.entry.spp for it in self.val_items if it.entry.spp}):
+            idx = [i for i, it in enumerate(self.val_items) if it.entry.spp == spp]
+            ratio = geometric_mean([learned[i] for i in idx]) / geometric_mean(
+                [self._fixed[i] for i in idx]
+            )
+            res[f"val_ratio_spp{spp}"] = ratio
+        self.last_val = res
+        return res
+
+    def export(self, path: Path) -> None:
+        self.model.card.training = {**self.description, "validation": dict(self.last_val)}
+        self.model.save(path)
+
+
+def build(
+    cfg: TrainConfig, *, progress: bool = False
+) -> tuple[KalantariTask, PatchSampler, LoadReport]:
+    """Scan, split, load and prepare the data, compute feature statistics, make the model.
+
+    Raises:
+        InputError: unknown model, unknown guide, no usable training image.
+    """
+    if cfg.model not in MODELS:
+        raise InputError(f"unknown model {cfg.model!r}; trainable: {', '.join(MODELS)}")
+    unknown = [g for g in cfg.guides if g not in GUIDE_FEATURES]
+    if unknown:
+        raise InputError(f"unknown guide(s) {unknown}; known: {', '.join(GUIDE_FEATURES)}")
+    if not cfg.data:
+        raise InputError("no training data: pass --data DIR (a folder made by mcdenoise render)")
+    kind = MODELS[cfg.model]
+    overrides: dict[str, Any] = {}
+    if cfg.kernel:
+        key, value = (
+            ("kernel_size", cfg.kernel) if kind == "xbf" else ("search_radius", cfg.kernel // 2)
+        )
+        overrides[key] = value
+    settings = settings_class(kind)(**overrides)
+    guides = [g for g in GUIDE_FEATURES if g in cfg.guides]
+    entries = scan_dataset(cfg.data, cfg.levels)
+    train_e, val_e = split_images(entries, cfg.val_fraction, cfg.seed, cfg.max_images)
+
+    def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
+        return prepare_item(buffers, kind, settings, guides, ref)
+
+    margin = max(cfg.margin, filter_radius(settings))
+    crop = cfg.patch + 2 * margin
+    train_items, report = load_items(train_e, prepare, min_size=crop, progress=progress)
+    val_items, val_report = load_items(val_e, prepare, min_size=1, progress=progress)
+    report.skipped += val_report.skipped
+    if not train_items:
+        raise InputError(f"{cfg.data}: no usable training image\n{report.summary()}")
+    keys = set(train_items[0].tensors)
+    guide_vars = [g for g in guides if f"fvar.{g}" in keys]
+    val_items = [it for it in val_items if set(it.tensors) == keys]
+    names = feature_names(guides, guide_vars)
+    stats = FeatureStats.from_samples(
+        names,
+        [it.tensors["features"][None, :, ::STATS_STRIDE, ::STATS_STRIDE] for it in train_items],
+    )
+    torch.manual_seed(cfg.seed)
+    model = new_model(kind, guides, guide_vars, stats, cfg.hidden, overrides)
+    description = {
+        "data": str(cfg.data),
+        "train_images": sorted({it.entry.image for it in train_items}),
+        "val_images": sorted({it.entry.image for it in val_items}),
+        "levels": sorted({it.entry.spp for it in train_items if it.entry.spp}),
+        "config": cfg.to_dict(),
+    }
+    sampler = PatchSampler(
+        train_items, patch=cfg.patch, margin=margin, importance=cfg.importance, noisy_key="color"
+    )
+    return KalantariTask(model, val_items, description, cfg.loss), sampler, report
+
+
+def train_kalantari(
+    cfg: TrainConfig, out: str | Path, *, resume: bool = False, progress: bool = True
+) -> tuple[TrainResult, LoadReport]:
+    """Train a Kalantari model into the run folder ``out`` (see :mod:`mcdenoise.train.loop`)."""
+    setup_torch(cfg)
+    t0 = time.perf_counter()
+    task, sampler, report = build(cfg, progress=progress)
+    run = RunFolder(out)
+    result = train(cfg, task, sampler, run, resume=resume, progress=progress)
+    result.seconds = time.perf_counter() - t0
+    return result, report
