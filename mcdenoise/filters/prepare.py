@@ -14,7 +14,8 @@ the guide features to comparable scales and picks up the variances that are pres
 * ``color_var`` (variance of the mean) is averaged over channels and made robust with
   ``max(v, median_3×3(v))``: from a few samples the variance estimate is itself very noisy, and
   a pixel whose estimate came out near 0 would otherwise refuse all its neighbours. Without a
-  ``color_var`` the variance is estimated from the colour (:func:`estimate_variance`) and
+  ``color_var`` (or with one that cannot be right: 1 spp, or all zero) the variance is
+  estimated from the colour (:func:`estimate_variance`) and
   :attr:`FilterInputs.estimated_variance` says so.
 
 :func:`denoise_xbf` and :func:`denoise_nlm` run the whole pipeline: prepare, demodulate by the
@@ -233,7 +234,9 @@ def prepare_inputs(
     albedo = feats.get("albedo")
     if albedo is None and "albedo" in clean and "albedo" in features:
         albedo = t("albedo")
-    if "color_var" in clean:
+    # One sample per pixel has no variance of the mean (the renderer writes 0): estimate it.
+    usable_var = "color_var" in clean and buffers.spp != 1 and bool(clean["color_var"].max() > 0)
+    if usable_var:
         color_var, estimated = robust_variance(t("color_var")), False
     else:
         color_var, estimated = estimate_variance(color), True

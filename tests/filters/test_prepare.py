@@ -224,3 +224,14 @@ def test_defaults_on_the_sample_renders(samples_dir, scene, spp) -> None:
         gain = noisy / rel(denoise(fb), ref)
         need = 3.0 if spp == 16 else 1.0
         assert gain > need, f"{denoise.__name__} on {scene} at {spp} spp: only {gain:.2f}x"
+
+
+def test_one_sample_per_pixel_estimates_the_variance_instead_of_trusting_zero() -> None:
+    # A 1-spp render's variance of the mean is written as 0: the filters used to treat every
+    # pixel as noise-free and return the input unchanged.
+    g = torch.Generator().manual_seed(0)
+    noisy = (0.5 + 0.2 * torch.randn(3, 32, 32, generator=g)).clamp_min(0)
+    fb = FeatureBuffers({"color": noisy, "color_var": torch.zeros(3, 32, 32)}, spp=1)
+    assert prepare_inputs(fb).estimated_variance
+    for fn in (denoise_xbf, denoise_nlm):
+        assert float((fn(fb) - 0.5).square().mean()) < 0.1 * float((noisy - 0.5).square().mean())
