@@ -1,0 +1,498 @@
+"""From unit records to the experiment's findings: curves, Pareto fronts, equal-time and
+equal-quality tables, the reference's noise floor, statistics over scenes.
+
+:func:`assemble` takes the records of every (scene, spp, method) unit (as written by
+:mod:`mcdenoise.experiments.runner`) and returns an :class:`ExperimentResult`, which
+:mod:`mcdenoise.experiments.report` writes out. Per scene:
+
+* the measured **noisy curve** (relMSE of plain rendering per level) with its log-log slope
+  and ``1/N`` fit (:mod:`~mcdenoise.experiments.quality`);
+* the **reference's noise floor** from its ``color_var``; records within 2× of it are flagged
+  ``limited_by_reference``;
+* per record the **equal-quality** spp and seconds of plain rendering and the speed-up;
+* the **Pareto front** and the **equal-time** table of (total seconds, relMSE)
+  (:mod:`~mcdenoise.experiments.tradeoff`).
+
+Over scenes ("overall"): per (method, spp) the mean total seconds and the geometric mean
+relMSE over the scenes (only for (method, spp) that succeeded in every scene, so means are
+comparable), the geometric means of the equal-quality spp and speed-up, the overall Pareto
+front and equal-time table, and the bootstrap statistics of :mod:`~mcdenoise.experiments.stats`.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcdenoise.eval.metrics import METRICS
+from mcdenoise.eval.results import decode_float, jsonable
+from mcdenoise.experiments.dataset import Level, SceneData
+from mcdenoise.experiments.quality import (
+    FLOOR_FACTOR,
+    NoisyCurve,
+    equal_quality,
+    limited_by_reference,
+    reference_noise_floor,
+)
+from mcdenoise.experiments.runner import MethodEntry
+from mcdenoise.experiments.spec import NOISY, ExperimentSpec
+from mcdenoise.experiments.stats import RatioStats, compare_methods
+from mcdenoise.experiments.tradeoff import (
+    EqualTimeRow,
+    Point,
+    equal_time,
+    log_budgets,
+    pareto_front,
+)
+
+#: Version of the results.json layout of experiments; bump when fields change meaning.
+SCHEMA = "mcdenoise.experiment/1"
+
+
+def number(value: Any) -> float | None:
+    """A record value as a float (``"inf"`` strings decoded); ``None`` when missing."""
+    try:
+        v = decode_float(value)
+    except (TypeError, ValueError):
+        return None
+    return v
+
+
+def finite(value: Any) -> bool:
+    """True for a finite number (not ``None``, not a JSON ``"inf"`` string)."""
+    v = number(value)
+    return v is not None and math.isfinite(v)
+
+
+def relmse_of(record: Mapping[str, Any]) -> float | None:
+    """relMSE of a record, ``None`` when it failed or has none."""
+    if record.get("failed"):
+        return None
+    v = number((record.get("metrics") or {}).get("relmse"))
+    return v if v is not None and math.isfinite(v) else None
+
+
+def _short(text: str, limit: int = 160) -> str:
+    """``text`` cut to ``limit`` characters (error messages can list every channel of a file)."""
+    return text if len(text) <= limit else text[: limit - 1] + "\u2026"
+
+
+def _geomean(values: Sequence[float]) -> float | None:
+    vals = [v for v in values if v is not None and math.isfinite(v) and v > 0]
+    if not vals or len(vals) != len(values):
+        return None
+    return float(np.exp(np.mean(np.log(vals))))
+
+
+@dataclass
+class SceneSummary:
+    """The per-scene findings (see the module docstring)."""
+
+    id: str
+    noisy_file: str
+    reference_file: str
+    reference_spp: int | None
+    seed: int | None
+    variant: str | None
+    levels: tuple[Level, ...]
+    noise_floor: float | None
+    floor_note: str | None = None
+    curve: NoisyCurve | None = None
+    budgets: tuple[float, ...] = ()
+    pareto: list[Point] = field(default_factory=list)
+    equal_time: list[EqualTimeRow] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        c = self.curve
+        return {
+            "id": self.id,
+            "noisy_file": self.noisy_file,
+            "reference_file": self.reference_file,
+            "reference_spp": self.reference_spp,
+            "seed": self.seed,
+            "variant": self.variant,
+            "levels": [
+                {
+                    "spp": lv.spp,
+                    "part": lv.part,
+                    "render_seconds": lv.render_seconds,
+                    "jit_seconds_excluded": lv.jit_seconds,
+                }
+                for lv in self.levels
+            ],
+            "noise_floor": self.noise_floor,
+            "noise_floor_note": self.floor_note,
+            "noisy_curve": None
+            if c is None
+            else {
+                "spp": list(c.spp),
+                "relmse": list(c.error),
+                "render_seconds": list(c.seconds),
+                "loglog_slope": c.slope(),
+                "one_over_n_constant": c.one_over_n(),
+                "seconds_per_spp": c.seconds_per_spp,
+            },
+            "budgets": list(self.budgets),
+            "pareto": [p.to_dict() for p in self.pareto],
+            "equal_time": [r.to_dict() for r in self.equal_time],
+        }
+
+
+@dataclass(frozen=True)
+class OverallRow:
+    """One (method, spp) over every scene.
+
+    ``relmse`` is the geometric mean over scenes and ``seconds`` the mean total seconds, both
+    ``None`` unless the method succeeded in every scene (``complete``); ``eq_spp`` and
+    ``speedup`` are geometric means of the per-scene equal-quality values; ``extrapolated`` and
+    ``limited`` count the scenes where the equal-quality value was extrapolated / the error
+    was within 2× of the reference's noise floor.
+    """
+
+    method: str
+    spp: int
+    scenes: int
+    complete: bool
+    seconds: float | None
+    render_seconds: float | None
+    denoise_seconds: float | None
+    relmse: float | None
+    eq_spp: float | None
+    speedup: float | None
+    extrapolated: int
+    limited: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class ExperimentResult:
+    """Everything the report shows (see the module docstring)."""
+
+    spec: ExperimentSpec
+    created: str
+    provenance: dict[str, Any]
+    entries: list[MethodEntry]
+    skipped: dict[str, str]
+    metrics: list[str]
+    scenes: list[SceneSummary]
+    records: list[dict[str, Any]]
+    overall: list[OverallRow]
+    overall_budgets: tuple[float, ...]
+    overall_pareto: list[Point]
+    overall_equal_time: list[EqualTimeRow]
+    stats: list[RatioStats]
+    baseline: str
+    strip_spp: int
+    out: Path
+    data_folder: Path
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def labels(self) -> list[str]:
+        return [e.label for e in self.entries]
+
+    @property
+    def spps(self) -> list[int]:
+        return sorted({int(r["spp"]) for r in self.records})
+
+    def record(self, scene: str, spp: int, label: str) -> dict[str, Any] | None:
+        for r in self.records:
+            if r["scene"] == scene and r["spp"] == spp and r["method"] == label:
+                return r
+        return None
+
+    def scene_records(self, scene: str) -> list[dict[str, Any]]:
+        return [r for r in self.records if r["scene"] == scene]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dict (non-finite numbers as strings, see :mod:`mcdenoise.eval.results`)."""
+        return jsonable(
+            {
+                "schema": SCHEMA,
+                "name": self.spec.name,
+                "created": self.created,
+                "encoding": (
+                    'Non-finite numbers are strings: "inf", "-inf", "nan"; missing values are '
+                    "null. Times are seconds; errors are relMSE unless named."
+                ),
+                "provenance": self.provenance,
+                "spec": self.spec.to_dict(),
+                "definitions": definitions(self.metrics),
+                "metrics": {m: METRICS[m].describe() for m in self.metrics},
+                "methods": [e.to_dict() for e in self.entries],
+                "skipped_methods": [{"label": k, "reason": v} for k, v in self.skipped.items()],
+                "strip_spp": self.strip_spp,
+                "notes": self.notes,
+                "scenes": [s.to_dict() for s in self.scenes],
+                "records": self.records,
+                "overall": {
+                    "rows": [r.to_dict() for r in self.overall],
+                    "budgets": list(self.overall_budgets),
+                    "pareto": [p.to_dict() for p in self.overall_pareto],
+                    "equal_time": [r.to_dict() for r in self.overall_equal_time],
+                },
+                "statistics": {
+                    "baseline": self.baseline,
+                    "resamples": self.spec.bootstrap,
+                    "confidence": self.spec.confidence,
+                    "seed": self.spec.stats_seed,
+                    "rows": [s.to_dict() for s in self.stats],
+                },
+            }
+        )
+
+
+def definitions(metrics: Sequence[str]) -> dict[str, str]:
+    """How every derived number is defined (results.json and the report state them)."""
+    return {
+        "render_seconds": (
+            "cumulative wall seconds of Mitsuba rendering up to this spp level (progressive "
+            "levels: level n contains the samples of the lower levels), JIT kernel compilation "
+            "and scene loading excluded; from the render folder's manifest.json"
+        ),
+        "denoise_seconds": (
+            "median wall seconds of the method over the timed repetitions (warm-up runs "
+            "excluded; method only, no file I/O); 0 for noisy"
+        ),
+        "total_seconds": "render_seconds + denoise_seconds",
+        "relmse_vs_noisy": "relMSE of the record / relMSE of the noisy image at the same spp",
+        "equal_quality": (
+            "spp plain rendering needs for the same relMSE, from the scene's measured noisy "
+            "curve (log-log interpolation between levels; 1/N law anchored at the highest "
+            "level beyond it, flagged 'extrapolated', or at the lowest level below it, flagged "
+            "'below ladder'); seconds = spp x the seconds per spp of plain rendering at the "
+            "highest level; speedup = those seconds / total_seconds"
+        ),
+        "noise_floor": (
+            "expected relMSE of the reference itself: mean(color_var / (ref^2 + 0.01)) over "
+            "pixels and channels, color_var being the reference's variance of the mean; "
+            f"records with relMSE below {FLOOR_FACTOR:g}x the floor are 'limited by the "
+            "reference'"
+        ),
+        "pareto": "no other (method, spp) is at least as fast and at least as accurate",
+        "equal_time": "lowest relMSE among the (method, spp) whose total_seconds fit the budget",
+        "statistics": (
+            "ratio = geometric mean over scenes of relMSE(method) / relMSE(baseline) at the "
+            "same spp, percentile bootstrap interval over scenes (seeded); wins = scenes where "
+            "the method has the lowest relMSE of all methods at that spp"
+        ),
+        "metrics": ", ".join(f"{METRICS[m].label}: {METRICS[m].space}" for m in metrics),
+    }
+
+
+def _noise_floor(reference: Path) -> tuple[float | None, str | None]:
+    from mcdenoise.io import load_buffers
+
+    buffers = load_buffers(reference)
+    if "color_var" not in buffers:
+        return None, f"{reference.name} has no color_var: the reference's noise floor is unknown"
+    floor = reference_noise_floor(buffers["color"].numpy(), buffers["color_var"].numpy())
+    return (floor if math.isfinite(floor) else None), None
+
+
+def _noisy_curve(records: Sequence[Mapping[str, Any]]) -> NoisyCurve | None:
+    pts = []
+    for r in sorted(records, key=lambda r: r["spp"]):
+        e = relmse_of(r)
+        if r["method"] == NOISY and e is not None and e > 0:
+            pts.append((int(r["spp"]), e, float(r["render_seconds"])))
+    if not pts:
+        return None
+    spp, err, sec = zip(*pts)
+    return NoisyCurve(tuple(spp), tuple(err), tuple(sec))
+
+
+def _points(records: Sequence[Mapping[str, Any]]) -> list[Point]:
+    pts = []
+    for r in records:
+        e = relmse_of(r)
+        t = number(r.get("total_seconds"))
+        if e is not None and t is not None and math.isfinite(t):
+            pts.append(Point(r["method"], int(r["spp"]), t, e))
+    return pts
+
+
+def assemble(
+    spec: ExperimentSpec,
+    *,
+    scenes: Sequence[SceneData],
+    entries: Sequence[MethodEntry],
+    skipped: Mapping[str, str],
+    records: Sequence[Mapping[str, Any]],
+    metrics: Sequence[str],
+    data_folder: Path,
+    strip_spp: int,
+    out: Path,
+    machine_at_start: Mapping[str, Any] | None = None,
+) -> ExperimentResult:
+    """Compute every finding from the unit ``records`` (one per scene × level × entry).
+
+    ``machine_at_start`` (:func:`~mcdenoise.experiments.timing.machine_info` taken before the
+    units ran) goes into the provenance next to the machine at the end (load averages)."""
+    from mcdenoise.experiments.provenance import provenance
+
+    recs = [dict(r) for r in records]
+    labels = [e.label for e in entries]
+    notes: list[str] = []
+    summaries: list[SceneSummary] = []
+    for scene in scenes:
+        mine = [r for r in recs if r["scene"] == scene.id]
+        floor, floor_note = _noise_floor(scene.reference)
+        curve = _noisy_curve(mine)
+        noisy_at = {r["spp"]: relmse_of(r) for r in mine if r["method"] == NOISY}
+        for r in mine:
+            e = relmse_of(r)
+            n = noisy_at.get(r["spp"])
+            r["relmse_vs_noisy"] = e / n if e is not None and n else None
+            r["limited_by_reference"] = limited_by_reference(e, floor)
+            r["equal_quality"] = None
+            if r["method"] != NOISY and e is not None and curve is not None:
+                eq = equal_quality(curve, e, number(r.get("total_seconds")))
+                r["equal_quality"] = eq.to_dict()
+        points = _points(mine)
+        front = pareto_front(points)
+        on_front = {(p.method, p.spp) for p in front}
+        for r in mine:
+            r["pareto"] = (r["method"], r["spp"]) in on_front
+        budgets = spec.budgets or log_budgets([p.seconds for p in points])
+        summaries.append(
+            SceneSummary(
+                id=scene.id,
+                noisy_file=str(scene.noisy),
+                reference_file=str(scene.reference),
+                reference_spp=scene.reference_spp,
+                seed=scene.seed,
+                variant=scene.variant,
+                levels=scene.levels,
+                noise_floor=floor,
+                floor_note=floor_note,
+                curve=curve,
+                budgets=tuple(budgets),
+                pareto=front,
+                equal_time=equal_time(points, budgets, noisy_label=NOISY),
+            )
+        )
+        if curve is None:
+            notes.append(f"{scene.id}: no usable noisy curve (every noisy level failed)")
+
+    spps = sorted({int(r["spp"]) for r in recs})
+    overall = _overall(recs, [s.id for s in summaries], labels, spps)
+    overall_points = [
+        Point(o.method, o.spp, o.seconds, o.relmse)
+        for o in overall
+        if o.complete and o.seconds is not None and o.relmse is not None
+    ]
+    overall_budgets = spec.budgets or log_budgets([p.seconds for p in overall_points])
+    baseline = spec.baseline
+    if baseline not in labels:
+        notes.append(
+            f"statistics baseline {baseline!r} is not in this run"
+            + (f" ({skipped[baseline]})" if baseline in skipped else "")
+            + "; ratios are to 'noisy'"
+        )
+        baseline = NOISY
+    errors = {
+        (r["scene"], int(r["spp"]), r["method"]): e for r in recs if (e := relmse_of(r)) is not None
+    }
+    stats = compare_methods(
+        errors,
+        scenes=[s.id for s in summaries],
+        methods=labels,
+        spps=spps,
+        baseline=baseline,
+        resamples=spec.bootstrap,
+        confidence=spec.confidence,
+        seed=spec.stats_seed,
+    )
+    for label, reason in skipped.items():
+        notes.append(f"skipped {label}: {reason}")
+    for label in labels:
+        errs = [r for r in recs if r["method"] == label and r.get("error")]
+        if errs:
+            reasons = sorted({_short(str(r["error"])) for r in errs})
+            notes.append(
+                f"{label} could not run on {len(errs)} of "
+                f"{sum(1 for r in recs if r['method'] == label)} inputs: "
+                + "; ".join(reasons[:3])
+                + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
+            )
+    files = sorted({Path(s.noisy) for s in scenes} | {Path(s.reference) for s in scenes})
+    prov = provenance(data_root=data_folder, files=files)
+    if machine_at_start is not None:
+        prov["machine_at_start"] = dict(machine_at_start)
+    return ExperimentResult(
+        spec=spec,
+        created=_dt.datetime.now(_dt.UTC).astimezone().isoformat(timespec="seconds"),
+        provenance=prov,
+        entries=list(entries),
+        skipped=dict(skipped),
+        metrics=list(metrics),
+        scenes=summaries,
+        records=recs,
+        overall=overall,
+        overall_budgets=tuple(overall_budgets),
+        overall_pareto=pareto_front(overall_points),
+        overall_equal_time=equal_time(overall_points, overall_budgets, noisy_label=NOISY),
+        stats=stats,
+        baseline=baseline,
+        strip_spp=strip_spp,
+        out=out,
+        data_folder=data_folder,
+        notes=notes,
+    )
+
+
+def _overall(
+    recs: Sequence[Mapping[str, Any]],
+    scenes: Sequence[str],
+    labels: Sequence[str],
+    spps: Sequence[int],
+) -> list[OverallRow]:
+    by_key = {(r["scene"], int(r["spp"]), r["method"]): r for r in recs}
+    rows = []
+    for label in labels:
+        for spp in spps:
+            rs = [by_key.get((s, spp, label)) for s in scenes]
+            ok = [r for r in rs if r is not None and relmse_of(r) is not None]
+            complete = len(ok) == len(scenes) and bool(scenes)
+            errs = [relmse_of(r) for r in ok]
+            eqs = [r.get("equal_quality") for r in ok if r.get("equal_quality")]
+            eq_spp = (
+                _geomean([number(q["spp"]) for q in eqs]) if eqs and len(eqs) == len(ok) else None
+            )
+            speed = (
+                _geomean([number(q["speedup"]) for q in eqs])
+                if eqs and len(eqs) == len(ok)
+                else None
+            )
+            rows.append(
+                OverallRow(
+                    method=label,
+                    spp=spp,
+                    scenes=len(ok),
+                    complete=complete,
+                    seconds=float(np.mean([number(r["total_seconds"]) for r in ok]))
+                    if complete
+                    else None,
+                    render_seconds=float(np.mean([float(r["render_seconds"]) for r in ok]))
+                    if complete
+                    else None,
+                    denoise_seconds=float(np.mean([float(r["denoise_seconds"]) for r in ok]))
+                    if complete
+                    else None,
+                    relmse=_geomean(errs) if complete else None,
+                    eq_spp=eq_spp if complete else None,
+                    speedup=speed if complete else None,
+                    extrapolated=sum(1 for q in eqs if q.get("extrapolated")),
+                    limited=sum(1 for r in ok if r.get("limited_by_reference")),
+                )
+            )
+    return rows

@@ -1,0 +1,228 @@
+"""The data of an experiment: render what is missing, then read the render folder's manifest.
+
+An experiment's images are an ``mcdenoise render`` folder (layout in
+:mod:`mcdenoise.render.generate`): ``<id>.exr`` with one part ``spp<n>`` per level of the
+ladder, ``ref/<id>.exr``, and ``manifest.json`` with each level's cumulative
+``render_seconds`` and its ``jit_seconds``. :func:`prepare_data` renders into the folder
+through :func:`mcdenoise.render.generate.generate` (resumable: finished images are skipped,
+so a second run renders nothing); :func:`load_dataset` reads it back as :class:`SceneData`.
+
+Render time of a level, as used by the experiment: the level's cumulative ``render_seconds``
+minus the JIT compilation seconds of every increment up to it (Dr.Jit compiles kernels on
+the first pass of each size; that is a one-off cost of the process, not of the samples).
+Scene loading (``load_seconds``) is not included either.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
+
+
+@dataclass(frozen=True)
+class Level:
+    """One spp level of one image.
+
+    Attributes:
+        spp: samples per pixel.
+        part: part name in the noisy file (``spp16``).
+        render_seconds: cumulative render seconds to reach this level, JIT excluded.
+        jit_seconds: cumulative JIT compilation seconds that were left out.
+    """
+
+    spp: int
+    part: str
+    render_seconds: float
+    jit_seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class SceneData:
+    """One rendered image of the data set: files, levels, seed, and a fingerprint of how it
+    was made (spec, seed, render settings, variant), which keys cached results."""
+
+    id: str
+    noisy: Path
+    reference: Path
+    levels: tuple[Level, ...]
+    reference_spp: int | None
+    seed: int | None
+    variant: str | None
+    fingerprint: str
+    record: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def level(self, spp: int) -> Level:
+        for lv in self.levels:
+            if lv.spp == spp:
+                return lv
+        raise KeyError(spp)
+
+
+def render_folder(spec: ExperimentSpec, out: str | os.PathLike[str]) -> Path:
+    """The folder the experiment's images are in: ``[scenes] folder``, else ``[render]
+    folder`` (relative to ``out`` unless absolute)."""
+    if spec.folder is not None:
+        return Path(spec.folder)
+    p = Path(spec.render_folder).expanduser()
+    return p if p.is_absolute() else Path(out) / p
+
+
+def render_jobs(spec: ExperimentSpec) -> list[Any]:
+    """The :class:`~mcdenoise.render.generate.ImageJob` list of the spec's scenes (curated
+    specs, then ``random`` procedural scenes), seeded by ``[render] seed``."""
+    from mcdenoise.render.generate import jobs_from_random, jobs_from_specs
+    from mcdenoise.render.spec import load_spec
+
+    jobs = jobs_from_specs([load_spec(p) for p in spec.scene_specs], seed=spec.seed)
+    if spec.random:
+        jobs += jobs_from_random(
+            spec.random, spec.seed, start=len(jobs), taken=[j.id for j in jobs]
+        )
+    return jobs
+
+
+def prepare_data(
+    spec: ExperimentSpec, out: str | os.PathLike[str], *, progress: bool = False
+) -> tuple[Path, list[str], Any]:
+    """Render the spec's images that are missing; return ``(folder, image ids, result)``.
+
+    With ``[scenes] folder`` nothing is rendered: the ids are every image of that folder's
+    manifest and ``result`` is ``None``. Otherwise ``result`` is the
+    :class:`~mcdenoise.render.generate.GenerateResult` (what was rendered and skipped).
+
+    Raises:
+        ExperimentError: the render folder holds a data set of other settings.
+        SpecError, RenderError: from the scene specs and the renderer.
+    """
+    folder = render_folder(spec, out)
+    if spec.folder is not None:
+        manifest = _manifest(folder)
+        return folder, [str(r["id"]) for r in manifest.get("images", [])], None
+    from mcdenoise.render.generate import RenderConfig, generate
+    from mcdenoise.render.manifest import shard_manifests
+
+    config = RenderConfig(
+        out=folder,
+        width=spec.width,
+        height=spec.height,
+        spp=spec.spp,
+        ref_spp=spec.ref_spp,
+        variant=spec.variant,
+        pass_spp=spec.pass_spp,
+        seed=spec.seed,
+        progress=progress,
+    )
+    if folder.is_dir():
+        for name, m in shard_manifests(folder).items():
+            if m.get("settings") != config.settings():
+                raise ExperimentError(
+                    f"{spec.source}: render.folder {folder} holds images rendered with other "
+                    f"settings ({folder / name}: {json.dumps(m.get('settings'))}); set "
+                    "[render] folder to a new folder, or delete that one"
+                )
+    jobs = render_jobs(spec)
+    result = generate(jobs, config)
+    return folder, [j.id for j in jobs], result
+
+
+def _manifest(folder: Path) -> dict[str, Any]:
+    from mcdenoise.render.manifest import MANIFEST, load_manifest
+
+    if not (folder / MANIFEST).is_file():
+        raise ExperimentError(
+            f"{folder}: no {MANIFEST}; an experiment needs a folder written by "
+            "`mcdenoise render` (it records the render seconds of every level)"
+        )
+    return load_manifest(folder)
+
+
+def _fingerprint(record: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
+    payload = {
+        "spec": record.get("spec"),
+        "seed": record.get("seed"),
+        "variant": record.get("variant"),
+        "mitsuba_version": record.get("mitsuba_version"),
+        "settings": settings,
+    }
+    text = json.dumps(payload, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def _levels(record: Mapping[str, Any], where: str) -> list[Level]:
+    out: list[Level] = []
+    jit_total = 0.0
+    for lv in record.get("levels") or []:
+        try:
+            spp = int(lv["spp"])
+            part = str(lv["part"])
+            seconds = float(lv["render_seconds"])
+        except (KeyError, TypeError, ValueError):
+            raise ExperimentError(
+                f"{where}: a level record lacks spp/part/render_seconds"
+            ) from None
+        jit_total += float(lv.get("jit_seconds") or 0.0)
+        out.append(Level(spp, part, max(seconds - jit_total, 0.0), round(jit_total, 6)))
+    return out
+
+
+def load_dataset(
+    folder: str | os.PathLike[str],
+    ids: Sequence[str] | None = None,
+    spp: Sequence[int] | None = None,
+) -> list[SceneData]:
+    """Read the images ``ids`` (default: all) of a render folder, restricted to the levels
+    ``spp`` (default: all of the folder's levels).
+
+    Raises:
+        ExperimentError: no manifest, an id or level missing, a sequence folder, or a file
+            missing on disk.
+    """
+    root = Path(folder).resolve()
+    manifest = _manifest(root)
+    settings = manifest.get("settings") or {}
+    if settings.get("frames") is not None:
+        raise ExperimentError(f"{root}: holds sequences (--frames); experiments use still images")
+    have = [int(v) for v in settings.get("spp", [])]
+    wanted = list(spp) if spp is not None else have
+    missing = [v for v in wanted if v not in have]
+    if missing:
+        raise ExperimentError(
+            f"{root}: has no level(s) {', '.join(map(str, missing))} (levels: "
+            f"{', '.join(map(str, have))})"
+        )
+    records = {str(r.get("id")): r for r in manifest.get("images", [])}
+    order = list(ids) if ids is not None else list(records)
+    scenes: list[SceneData] = []
+    for image_id in order:
+        rec = records.get(image_id)
+        if rec is None:
+            raise ExperimentError(f"{root}: image {image_id!r} is not in the manifest")
+        files = rec.get("files") or {}
+        noisy, ref = root / str(files.get("noisy", "")), root / str(files.get("reference", ""))
+        for p in (noisy, ref):
+            if not p.is_file():
+                raise ExperimentError(f"{root}: image {image_id!r}: file {p} is missing")
+        levels = [lv for lv in _levels(rec, f"{root}: image {image_id!r}") if lv.spp in wanted]
+        scenes.append(
+            SceneData(
+                id=image_id,
+                noisy=noisy,
+                reference=ref,
+                levels=tuple(sorted(levels, key=lambda lv: lv.spp)),
+                reference_spp=(rec.get("reference") or {}).get("spp", settings.get("ref_spp")),
+                seed=rec.get("seed"),
+                variant=rec.get("variant"),
+                fingerprint=_fingerprint(rec, settings),
+                record=rec,
+            )
+        )
+    if not scenes:
+        raise ExperimentError(f"{root}: no image to evaluate")
+    return scenes

@@ -1,0 +1,241 @@
+"""The experiment's plots (matplotlib, Agg canvas, PNG files written atomically).
+
+* :func:`plot_error_vs_spp`: relMSE against spp on log-log axes, one line per method, the
+  ``c/N`` Monte Carlo line fitted to the noisy curve (slope -1), and the reference's noise
+  floor as a horizontal line (the band below 2× the floor shaded: errors there are limited by
+  the reference, not by the method);
+* :func:`plot_error_vs_time`: relMSE against total seconds (render + denoise), one line per
+  method through its spp levels, the Pareto front as a grey step line, its points labelled
+  with their spp;
+* :func:`plot_speedup`: the equal-quality speed-up against spp (1 = no gain over plain
+  rendering).
+
+Figures are drawn on a :class:`matplotlib.figure.Figure` with an Agg canvas, never through
+``pyplot``, so nothing global (the backend, open figures) is touched. Every method keeps its
+colour and marker in every plot (:func:`styles`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from mcdenoise.io.atomic import atomic_path
+
+#: Size of every plot in inches (at :data:`DPI`).
+FIGSIZE = (6.4, 4.4)
+DPI = 100
+_MARKERS = "osD^v<>pXh*"
+
+
+def plots_unavailable() -> str | None:
+    """``None`` when matplotlib can draw here, else the reason."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return "matplotlib is not installed (pip install 'mcdenoise[plots]')"
+    return None
+
+
+def styles(labels: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """label -> matplotlib line style; ``noisy`` is black and dashed, the rest cycle through
+    the tab10/tab20 colours and a set of markers."""
+    from matplotlib import colormaps
+
+    others = [lb for lb in labels if lb != "noisy"]
+    cmap = colormaps["tab10" if len(others) <= 10 else "tab20"]
+    out: dict[str, dict[str, Any]] = {}
+    for i, label in enumerate(others):
+        out[label] = {
+            "color": cmap(i % cmap.N),
+            "marker": _MARKERS[i % len(_MARKERS)],
+            "linestyle": "-",
+        }
+    out["noisy"] = {"color": "black", "marker": "o", "linestyle": "--"}
+    return out
+
+
+def _figure() -> tuple[Any, Any]:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=FIGSIZE, dpi=DPI)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.grid(True, which="both", alpha=0.25)
+    return fig, ax
+
+
+def _save(fig: Any, path: str | os.PathLike[str]) -> None:
+    # fixed margins: as readable as tight_layout here, at a fraction of its cost
+    fig.subplots_adjust(left=0.12, right=0.97, bottom=0.12, top=0.92)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI)
+
+
+def _floor(ax: Any, floor: float | None, ys: Sequence[float]) -> None:
+    if floor is None or not math.isfinite(floor) or floor <= 0:
+        return
+    ax.axhline(floor, color="0.35", linestyle=":", linewidth=1.5, label="reference noise floor")
+    lo = min([*ys, floor]) / 3.0
+    ax.axhspan(lo, 2.0 * floor, color="0.5", alpha=0.08, linewidth=0)
+
+
+def _legend(ax: Any, n: int) -> None:
+    ax.legend(fontsize=7 if n > 6 else 8, loc="best", ncol=2 if n > 8 else 1, framealpha=0.85)
+
+
+def _ylim(ax: Any, ys: Sequence[float], floor: float | None) -> None:
+    vals = [y for y in ys if math.isfinite(y) and y > 0]
+    if floor is not None and math.isfinite(floor) and floor > 0:
+        vals.append(floor)
+    if vals:
+        ax.set_ylim(min(vals) / 1.6, max(vals) * 1.6)
+
+
+def plot_error_vs_spp(
+    path: str | os.PathLike[str],
+    series: Mapping[str, tuple[Sequence[float], Sequence[float]]],
+    *,
+    one_over_n: float | None = None,
+    floor: float | None = None,
+    title: str = "",
+    ylabel: str = "relMSE",
+) -> None:
+    """relMSE vs spp, log-log, one line per label.
+
+    Args:
+        path: PNG file to write.
+        series: label -> (spp levels, errors), in plotting order.
+        one_over_n: ``c`` of the noisy ``c / N`` fit, drawn as a thin dotted line over the
+            spp range (``None``: not drawn).
+        floor: the reference's noise floor (``None``: not drawn).
+        title, ylabel: texts.
+    """
+    fig, ax = _figure()
+    st = styles(list(series))
+    ys: list[float] = []
+    all_x: list[float] = []
+    for label, (x, y) in series.items():
+        pts = [(a, b) for a, b in zip(x, y) if b is not None and math.isfinite(b) and b > 0]
+        if not pts:
+            continue
+        xs, vs = zip(*pts)
+        ys.extend(vs)
+        all_x.extend(xs)
+        ax.plot(xs, vs, label=label, markersize=4, linewidth=1.3, **st[label])
+    if one_over_n is not None and all_x:
+        lo, hi = min(all_x), max(all_x)
+        ax.plot(
+            [lo, hi],
+            [one_over_n / lo, one_over_n / hi],
+            color="0.45",
+            linewidth=1,
+            linestyle=(0, (1, 2)),
+            label="1/N (Monte Carlo slope, fit to noisy)",
+        )
+    _floor(ax, floor, ys)
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    _ylim(ax, ys, floor)
+    ax.set_xlabel("samples per pixel (spp)")
+    ax.set_ylabel(f"{ylabel} (log)")
+    ax.set_title(title, fontsize=10)
+    _legend(ax, len(series) + 2)
+    _save(fig, path)
+
+
+def plot_error_vs_time(
+    path: str | os.PathLike[str],
+    series: Mapping[str, tuple[Sequence[float], Sequence[float]]],
+    *,
+    front: Sequence[tuple[float, float, str]] = (),
+    floor: float | None = None,
+    title: str = "",
+    ylabel: str = "relMSE",
+) -> None:
+    """relMSE vs total seconds, log-log, one line per label through its spp levels.
+
+    Args:
+        path: PNG file to write.
+        series: label -> (total seconds, errors) in spp order.
+        front: the Pareto front as (seconds, error, text) fastest first; drawn as a grey step
+            line, each point annotated with ``text`` (e.g. ``"nlm 4"``).
+        floor: the reference's noise floor (``None``: not drawn).
+    """
+    fig, ax = _figure()
+    st = styles(list(series))
+    ys: list[float] = []
+    for label, (x, y) in series.items():
+        pts = [
+            (a, b)
+            for a, b in zip(x, y)
+            if a is not None and b is not None and a > 0 and math.isfinite(b) and b > 0
+        ]
+        if not pts:
+            continue
+        xs, vs = zip(*pts)
+        ys.extend(vs)
+        ax.plot(xs, vs, label=label, markersize=4, linewidth=1.2, **st[label])
+    if front:
+        fx = [p[0] for p in front]
+        fy = [p[1] for p in front]
+        ax.step(
+            fx,
+            fy,
+            where="post",
+            color="0.3",
+            linewidth=2.5,
+            alpha=0.35,
+            label="Pareto front",
+            zorder=0,
+        )
+        for sx, sy, text in front:
+            ax.annotate(text, (sx, sy), textcoords="offset points", xytext=(3, 3), fontsize=6)
+    _floor(ax, floor, ys)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    from matplotlib.ticker import NullFormatter
+
+    ax.xaxis.set_minor_formatter(NullFormatter())  # minor labels of short ranges collide
+    _ylim(ax, ys, floor)
+    ax.set_xlabel("total seconds: render + denoise (log)")
+    ax.set_ylabel(f"{ylabel} (log)")
+    ax.set_title(title, fontsize=10)
+    _legend(ax, len(series) + 2)
+    _save(fig, path)
+
+
+def plot_speedup(
+    path: str | os.PathLike[str],
+    series: Mapping[str, tuple[Sequence[float], Sequence[float]]],
+    *,
+    title: str = "",
+) -> None:
+    """Equal-quality speed-up vs spp (log-log), one line per label, with a line at 1.
+
+    Args:
+        path: PNG file to write.
+        series: label -> (spp levels, speed-ups).
+    """
+    fig, ax = _figure()
+    st = styles(["noisy", *series])
+    ys: list[float] = []
+    for label, (x, y) in series.items():
+        pts = [(a, b) for a, b in zip(x, y) if b is not None and math.isfinite(b) and b > 0]
+        if not pts:
+            continue
+        xs, vs = zip(*pts)
+        ys.extend(vs)
+        ax.plot(xs, vs, label=label, markersize=4, linewidth=1.3, **st[label])
+    ax.axhline(1.0, color="black", linewidth=1, linestyle="--", label="plain rendering")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    _ylim(ax, [*ys, 1.0], None)
+    ax.set_xlabel("samples per pixel (spp) the method started from")
+    ax.set_ylabel("speed-up at equal quality (log)")
+    ax.set_title(title, fontsize=10)
+    _legend(ax, len(series) + 1)
+    _save(fig, path)

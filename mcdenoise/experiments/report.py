@@ -1,0 +1,888 @@
+"""Write an experiment: ``results.json``, ``results.csv``, ``report.html`` and its PNGs.
+
+The page is for a reader new to the field. It opens with how to read it and the headline
+findings, then the answers over all scenes — error against spp (with the ``1/N`` line and
+the reference's noise floor), error against total time with the Pareto front, the
+equal-time table, the equal-quality speed-ups and the statistics over scenes — then one
+section per scene (its curves, tables and an image strip: noisy input, every method and the
+reference through the same crop and tonemap, each with its per-pixel relMSE map), and ends
+with the definitions and the provenance (versions, git commit, machine, data hash, seeds).
+
+Like :mod:`mcdenoise.eval.report` the page needs no network and no JavaScript: inline CSS,
+PNGs in ``images/`` referenced by relative paths. Every file is written atomically; PNGs of
+an earlier report that the new page does not show are removed.
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+import math
+import os
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from importlib import resources
+from pathlib import Path
+from string import Template
+from typing import Any
+
+import numpy as np
+
+from mcdenoise.errors import McdenoiseError
+from mcdenoise.eval.metrics import METRICS, relmse_map
+from mcdenoise.eval.preview import choose_crop, crop
+from mcdenoise.eval.report import error_scale, write_png
+from mcdenoise.eval.results import encode_float
+from mcdenoise.eval.tonemap import auto_exposure, colorbar, display, false_color
+from mcdenoise.experiments.analysis import ExperimentResult, SceneSummary, number, relmse_of
+from mcdenoise.experiments.quality import FLOOR_FACTOR
+from mcdenoise.experiments.spec import NOISY
+from mcdenoise.experiments.stats import BETTER, IS_BASELINE, WORSE
+from mcdenoise.io.atomic import write_text_atomic
+
+#: Columns of results.csv before the metric columns.
+CSV_HEAD = (
+    "scene",
+    "method",
+    "base_method",
+    "spp",
+    "render_seconds",
+    "denoise_seconds",
+    "total_seconds",
+    "denoise_runs",
+    "device",
+    "threads",
+)
+#: Columns of results.csv after the metric columns.
+CSV_TAIL = (
+    "relmse_vs_noisy",
+    "limited_by_reference",
+    "pareto",
+    "equal_quality_spp",
+    "equal_quality_seconds",
+    "equal_quality_extrapolated",
+    "speedup",
+    "failed",
+    "error",
+    "reason",
+    "output",
+    "params",
+)
+#: Names of the PNGs this module writes (pruned when no longer shown).
+_OWN_IMAGE = re.compile(r"^(plot|strip)_[A-Za-z0-9._-]+\.png$")
+_MAX_ZOOM = 8
+#: The mark of a result within 2× of the reference's noise floor.
+_LIM_MARK = ' <span class="lim" title="within 2x of the reference noise floor">≈</span>'
+
+HOW_TO_READ = (
+    "<p>A Monte Carlo renderer gets more accurate the longer it runs: its error (relMSE, "
+    "lower is better) falls as 1/N with the number N of samples per pixel (spp). A denoiser "
+    "spends a little extra time to remove much of that error. This report measures, on the "
+    "same scenes, <b>what each level of accuracy costs in seconds</b>, with and without each "
+    "denoiser.</p>"
+    "<p><b>Error vs spp</b>: one line per method; the dashed black line is plain rendering "
+    "(<i>noisy</i>), the dotted grey line the 1/N law fitted to it. <b>Error vs time</b>: the "
+    "same points against the total time (render + denoise); the thick grey step line is the "
+    "<b>Pareto front</b>: the only choices for which nothing else is both faster and more "
+    "accurate. <b>Equal time</b>: for a time budget, the most accurate choice that fits. "
+    "<b>Equal quality</b>: how many spp (and seconds) plain rendering would need to reach a "
+    "method's error, and the resulting speed-up (×); † marks values extrapolated with the 1/N "
+    "law beyond the measured spp ladder.</p>"
+    "<p>The reference is itself a finite render: its own expected error, the <b>noise "
+    "floor</b>, is drawn as a dotted horizontal line. Errors within "
+    f"{FLOOR_FACTOR:g}× of it (shaded band, marked ≈) measure the reference as much as the "
+    "method, so no method is credited with beating the reference. With several scenes, "
+    "ratios to a baseline come with a bootstrap confidence interval over scenes: a "
+    "difference whose interval contains 1 is reported as no clear difference.</p>"
+)
+
+
+def write_experiment_report(
+    result: ExperimentResult, out_dir: str | os.PathLike[str]
+) -> dict[str, Path]:
+    """Write ``results.json``, ``results.csv``, ``report.html`` and ``images/*.png``.
+
+    Returns:
+        ``{"json": ..., "csv": ..., "html": ..., "images": <folder>}``.
+
+    Raises:
+        McdenoiseError: a file cannot be written.
+    """
+    out = Path(out_dir)
+    paths = {
+        "json": out / "results.json",
+        "csv": out / "results.csv",
+        "html": out / "report.html",
+        "images": out / "images",
+    }
+    try:
+        paths["images"].mkdir(parents=True, exist_ok=True)
+        write_json(result, paths["json"])
+        write_csv(result, paths["csv"])
+        page = render_html(result, out)
+        write_text_atomic(paths["html"], page)
+        shown = {html.unescape(n) for n in re.findall(r'src="images/([^"/]+)"', page)}
+        for f in paths["images"].iterdir():
+            if f.is_file() and _OWN_IMAGE.match(f.name) and f.name not in shown:
+                f.unlink()
+    except OSError as err:
+        raise McdenoiseError(f"cannot write the report in {out}: {err}") from None
+    return paths
+
+
+# --- JSON and CSV -------------------------------------------------------------------------
+
+
+def write_json(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
+    """``result.to_dict()`` as strict JSON (``allow_nan=False``), atomically."""
+    text = json.dumps(result.to_dict(), indent=1, ensure_ascii=False, allow_nan=False)
+    write_text_atomic(path, text + "\n")
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return str(encode_float(value))
+    if isinstance(value, dict | list):
+        return json.dumps(value, sort_keys=True)
+    return str(value)
+
+
+def csv_columns(result: ExperimentResult) -> list[str]:
+    """Header of results.csv."""
+    return [*CSV_HEAD, *result.metrics, *CSV_TAIL]
+
+
+def write_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
+    """One row per (scene, spp, method) record, atomically."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(csv_columns(result))
+    for r in result.records:
+        timing = r.get("timing") or {}
+        eq = r.get("equal_quality") or {}
+        row = [r["scene"], r["method"], r.get("base_method"), r["spp"]]
+        row += [r.get("render_seconds"), r.get("denoise_seconds"), r.get("total_seconds")]
+        row.append(";".join(_cell(v) for v in timing.get("runs", [])) or None)
+        row += [r.get("device"), r.get("threads")]
+        row += [(r.get("metrics") or {}).get(m) for m in result.metrics]
+        row += [r.get("relmse_vs_noisy"), r.get("limited_by_reference"), r.get("pareto")]
+        row += [eq.get("spp"), eq.get("seconds"), eq.get("extrapolated"), eq.get("speedup")]
+        row += [r.get("failed"), r.get("error"), r.get("reason"), r.get("output")]
+        row.append(r.get("params") or None)
+        w.writerow([_cell(v) for v in row])
+    write_text_atomic(path, buf.getvalue())
+
+
+# --- formatting ---------------------------------------------------------------------------
+
+
+def _esc(text: Any) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _g(value: Any, digits: int = 3) -> str:
+    v = number(value) if not isinstance(value, float | int) else float(value)
+    if v is None:
+        return "\u2013"
+    if math.isnan(v):
+        return "NaN"
+    if math.isinf(v):
+        return "\u221e" if v > 0 else "\u2212\u221e"
+    if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e5):
+        return f"{v:.{digits - 1}e}"
+    return f"{v:.{digits}g}"
+
+
+def _sec(value: Any) -> str:
+    v = number(value) if not isinstance(value, float | int) else float(value)
+    if v is None:
+        return "\u2013"
+    return f"{v:.3g} s"
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._") or "x"
+
+
+def _sub(text: str) -> str:
+    """A second line in a table cell (already escaped ``text``)."""
+    return f'<span class="sub">{text}</span>'
+
+
+def _img(name: str, alt: str, extra: str = "") -> str:
+    return f'<img src="images/{_esc(name)}" alt="{_esc(alt)}"{extra}>'
+
+
+def _table(head: Sequence[str], rows: Iterable[str], cls: str = "t") -> str:
+    th = "".join(f"<th>{h}</th>" for h in head)
+    return (
+        f'<table class="{cls}"><thead><tr>{th}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
+    )
+
+
+# --- plots --------------------------------------------------------------------------------
+
+
+def _plot_series(
+    result: ExperimentResult, records: Sequence[Mapping[str, Any]], x: str
+) -> dict[str, tuple[list[float], list[float]]]:
+    series: dict[str, tuple[list[float], list[float]]] = {}
+    for label in result.labels:
+        rs = sorted((r for r in records if r["method"] == label), key=lambda r: r["spp"])
+        xs, ys = [], []
+        for r in rs:
+            e = relmse_of(r)
+            xv = number(r.get(x)) if x != "spp" else float(r["spp"])
+            if e is not None and xv is not None:
+                xs.append(xv)
+                ys.append(e)
+        if xs:
+            series[label] = (xs, ys)
+    return series
+
+
+def _scene_plots(result: ExperimentResult, scene: SceneSummary, index: int, out: Path) -> list[str]:
+    from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time
+
+    recs = result.scene_records(scene.id)
+    tag = f"{index:02d}_{_slug(scene.id)}"
+    spp_name, time_name = f"plot_{tag}_error_spp.png", f"plot_{tag}_error_time.png"
+    c = scene.curve
+    plot_error_vs_spp(
+        out / "images" / spp_name,
+        _plot_series(result, recs, "spp"),
+        one_over_n=c.one_over_n() if c is not None else None,
+        floor=scene.noise_floor,
+        title=f"{scene.id}: error vs samples per pixel",
+    )
+    plot_error_vs_time(
+        out / "images" / time_name,
+        _plot_series(result, recs, "total_seconds"),
+        front=[(p.seconds, p.error, f"{p.method} {p.spp}") for p in scene.pareto],
+        floor=scene.noise_floor,
+        title=f"{scene.id}: error vs total time (render + denoise)",
+    )
+    return [spp_name, time_name]
+
+
+def _overall_plots(result: ExperimentResult, out: Path) -> list[str]:
+    from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time, plot_speedup
+
+    rows = [o for o in result.overall if o.complete]
+    fake = [
+        {
+            "method": o.method,
+            "spp": o.spp,
+            "total_seconds": o.seconds,
+            "metrics": {"relmse": o.relmse},
+        }
+        for o in rows
+    ]
+    floors = [s.noise_floor for s in result.scenes if s.noise_floor is not None]
+    floor = float(np.exp(np.mean(np.log(floors)))) if floors and min(floors) > 0 else None
+    noisy = [o for o in rows if o.method == NOISY and o.relmse]
+    c = None
+    if noisy:
+        c = float(np.exp(np.mean([math.log(o.relmse * o.spp) for o in noisy if o.relmse])))
+    names = [
+        "plot_overall_error_spp.png",
+        "plot_overall_error_time.png",
+        "plot_overall_speedup.png",
+    ]
+    n = len(result.scenes)
+    where = f"geometric mean over {n} scene{'s' if n != 1 else ''}"
+    plot_error_vs_spp(
+        out / "images" / names[0],
+        _plot_series(result, fake, "spp"),
+        one_over_n=c,
+        floor=floor,
+        title=f"Error vs samples per pixel ({where})",
+    )
+    plot_error_vs_time(
+        out / "images" / names[1],
+        _plot_series(result, fake, "total_seconds"),
+        front=[(p.seconds, p.error, f"{p.method} {p.spp}") for p in result.overall_pareto],
+        floor=floor,
+        title=f"Error vs total time ({where}; mean seconds)",
+    )
+    speed: dict[str, tuple[list[float], list[float]]] = {}
+    for label in result.labels:
+        if label == NOISY:
+            continue
+        pts = [(o.spp, o.speedup) for o in rows if o.method == label and o.speedup]
+        if pts:
+            speed[label] = ([p[0] for p in pts], [p[1] for p in pts])
+    plot_speedup(out / "images" / names[2], speed, title=f"Equal-quality speed-up ({where})")
+    return names
+
+
+# --- sections -----------------------------------------------------------------------------
+
+
+def _run_table(result: ExperimentResult) -> str:
+    spec, prov = result.spec, result.provenance
+    machine = prov.get("machine", {})
+    first = result.scenes[0] if result.scenes else None
+    ladder = ", ".join(str(v.spp) for v in first.levels) if first else ""
+    ref_spp = first.reference_spp if first else ""
+    folder = Path(first.noisy_file).parent if first else ""
+    skipped = "; ".join(f"{k} ({v})" for k, v in result.skipped.items())
+    data_hash = str(prov.get("data_hash", ""))[:16]
+    rows = [
+        ("Scenes", f"{len(result.scenes)}: {_esc(', '.join(s.id for s in result.scenes))}"),
+        (
+            "spp ladder",
+            f"{_esc(ladder)} (progressive: each level reuses the samples of the lower ones); "
+            f"reference {_esc(ref_spp)} spp",
+        ),
+        ("Data", f"render folder {_esc(folder)}, data hash <code>{_esc(data_hash)}</code>…"),
+        (
+            "Methods",
+            _esc(", ".join(result.labels))
+            + (f'<br><span class="small">skipped: {_esc(skipped)}</span>' if skipped else ""),
+        ),
+        (
+            "Timing",
+            f"median of {spec.repetitions} timed run(s) after {spec.warmup} warm-up run(s) per "
+            f"input; device {_esc(spec.device)}, torch threads "
+            f"{_esc(_threads(result))} (libraries outside torch use their own thread pools); "
+            f"{_esc(machine.get('cpu', ''))}, "
+            f"{_esc(machine.get('cpu_count', ''))} CPU(s), load average at the end "
+            f"{_esc(machine.get('load_average', 'unknown'))}",
+        ),
+        (
+            "Version",
+            f"mcdenoise {_esc(prov.get('mcdenoise_version'))}, git commit "
+            f"<code>{_esc(str(prov.get('git_commit'))[:12])}</code>",
+        ),
+    ]
+    body = "".join(f"<tr><th>{k}</th><td>{v}</td></tr>" for k, v in rows)
+    return f'<table class="meta">{body}</table>'
+
+
+def _threads(result: ExperimentResult) -> str:
+    seen = sorted({r.get("threads") for r in result.records if r.get("threads") is not None})
+    return ", ".join(map(str, seen)) or "n/a"
+
+
+def _findings(result: ExperimentResult) -> str:
+    items: list[str] = []
+    strip = result.strip_spp
+    rows = {(o.method, o.spp): o for o in result.overall}
+    at = [
+        (o.relmse, o.method) for o in result.overall if o.spp == strip and o.complete and o.relmse
+    ]
+    if at:
+        best_e, best = min(at)
+        noisy = rows.get((NOISY, strip))
+        gain = (
+            f", {noisy.relmse / best_e:.3g}× lower than plain rendering"
+            if noisy and noisy.relmse and best != NOISY
+            else ""
+        )
+        items.append(
+            f"At {strip} spp the lowest error over the scenes is <b>{_esc(best)}</b> "
+            f"(relMSE {_g(best_e)}{gain})."
+        )
+    speed = [
+        (o.speedup, o) for o in result.overall if o.complete and o.speedup and o.method != NOISY
+    ]
+    if speed:
+        s, o = max(speed, key=lambda t: t[0])
+        flag = " (extrapolated beyond the ladder in some scenes)" if o.extrapolated else ""
+        items.append(
+            f"Largest equal-quality speed-up: <b>{_esc(o.method)}</b> from {o.spp} spp: "
+            f"plain rendering would need {_g(o.eq_spp)} spp for the same error, "
+            f"{_g(s)}× the time{flag}."
+        )
+    if result.overall_equal_time:
+        last = result.overall_equal_time[-1]
+        if last.best is not None:
+            items.append(
+                f"With the largest budget ({_sec(last.budget)}), the most accurate choice is "
+                f"<b>{_esc(last.best.method)}</b> at {last.best.spp} spp."
+            )
+    limited = [r for r in result.records if r.get("limited_by_reference")]
+    if limited:
+        items.append(
+            f'<span class="lim">{len(limited)} result(s) are within {FLOOR_FACTOR:g}× of the '
+            "reference's noise floor (marked ≈): there the reference limits what can be "
+            "measured.</span>"
+        )
+    better = [s for s in result.stats if s.verdict == BETTER and s.spp == strip]
+    if better and result.baseline != NOISY:
+        items.append(
+            f"Clearly better than {_esc(result.baseline)} at {strip} spp (whole "
+            f"{result.spec.confidence:.0%} interval below 1): "
+            + _esc(", ".join(s.method for s in better))
+            + "."
+        )
+    if not items:
+        return ""
+    return (
+        '<div class="findings"><b>Headlines</b><ul>'
+        + "".join(f"<li>{i}</li>" for i in items)
+        + "</ul></div>"
+    )
+
+
+def _overall_error_table(result: ExperimentResult) -> str:
+    spps = result.spps
+    rows = []
+    by = {(o.method, o.spp): o for o in result.overall}
+    for label in result.labels:
+        cells = []
+        for spp in spps:
+            o = by.get((label, spp))
+            if o is None or not o.complete:
+                n = o.scenes if o else 0
+                cells.append(
+                    '<td class="num fail" title="failed or missing in some scenes">'
+                    f"{n}/{len(result.scenes)} scenes</td>"
+                )
+                continue
+            front = any(p.method == label and p.spp == spp for p in result.overall_pareto)
+            lim = _LIM_MARK if o.limited else ""
+            cells.append(
+                f'<td class="num{" front" if front else ""}">{_g(o.relmse)}{lim}'
+                f'<span class="sub">{_sec(o.seconds)}</span></td>'
+            )
+        cls = ' class="noisy"' if label == NOISY else ""
+        rows.append(f"<tr{cls}><td>{_esc(label)}</td>{''.join(cells)}</tr>")
+    head = ["method", *(f"{s} spp" for s in spps)]
+    return (
+        '<p class="small">Each cell: relMSE (geometric mean over scenes) and, below, the mean '
+        "total seconds (render + denoise). Green cells are on the Pareto front.</p>"
+        + _table(head, rows)
+    )
+
+
+def _equal_time_table(rows: Sequence[Any]) -> str:
+    out = []
+    for r in rows:
+        if r.best is None:
+            out.append(
+                f'<tr><td class="num">{_sec(r.budget)}</td><td colspan="4">nothing fits</td></tr>'
+            )
+            continue
+        ru = r.runner_up
+        nz = r.noisy
+        out.append(
+            f'<tr><td class="num">{_sec(r.budget)}</td>'
+            f"<td><b>{_esc(r.best.method)}</b> at {r.best.spp} spp"
+            f'<span class="sub">relMSE {_g(r.best.error)}, {_sec(r.best.seconds)}</span></td>'
+            + (
+                f"<td>{_esc(ru.method)} at {ru.spp} spp{_sub(f'relMSE {_g(ru.error)}')}</td>"
+                if ru
+                else "<td>\u2013</td>"
+            )
+            + (f"<td>{nz.spp} spp{_sub(f'relMSE {_g(nz.error)}')}</td>" if nz else "<td>none</td>")
+            + f'<td class="num">{_g(r.gain)}{"×" if r.gain else ""}</td></tr>'
+        )
+    return _table(
+        [
+            "time budget",
+            "best choice",
+            "best other method",
+            "plain rendering",
+            "error of plain ÷ best",
+        ],
+        out,
+    )
+
+
+def _overall_eq_table(result: ExperimentResult) -> str:
+    spps = result.spps
+    by = {(o.method, o.spp): o for o in result.overall}
+    rows = []
+    for label in result.labels:
+        if label == NOISY:
+            continue
+        cells = []
+        for spp in spps:
+            o = by.get((label, spp))
+            if o is None or not o.complete or o.speedup is None:
+                cells.append("<td>\u2013</td>")
+                continue
+            dag = ""
+            if o.extrapolated:
+                dag = f'<span title="1/N law used in {o.extrapolated} scene(s)">†</span>'
+            eq_spp = _sub(f"{_g(o.eq_spp)} spp")
+            cells.append(f'<td class="num">{_g(o.speedup)}×{dag}{eq_spp}</td>')
+        rows.append(f"<tr><td>{_esc(label)}</td>{''.join(cells)}</tr>")
+    if not rows:
+        return '<p class="notes">No denoiser in this run.</p>'
+    return (
+        '<p class="small">Each cell: speed-up at equal quality (seconds plain rendering needs '
+        "for the method's error ÷ the method's total seconds) and, below, the spp plain "
+        "rendering needs; geometric means over scenes. † = extrapolated beyond the measured "
+        "ladder (1/N law) in some scene.</p>"
+        + _table(["method", *(f"from {s} spp" for s in spps)], rows)
+    )
+
+
+def _stats_table(result: ExperimentResult) -> str:
+    spps = result.spps
+    labels = [lb for lb in result.labels if lb != result.baseline]
+    by = {(s.method, s.spp): s for s in result.stats}
+    rows = []
+    for label in labels:
+        cells = []
+        for spp in spps:
+            s = by.get((label, spp))
+            if s is None or s.ratio is None:
+                cells.append(f"<td>{_esc(s.verdict if s else '')}</td>")
+                continue
+            cls = {BETTER: "better", WORSE: "worse"}.get(s.verdict, "unclear")
+            beats = f"wins {s.wins}/{s.scenes}, beats {_esc(result.baseline)} in {s.beats_baseline}"
+            cells.append(
+                f'<td class="num"><span class="{cls}">{_g(s.ratio)}</span>'
+                + _sub(f"[{_g(s.ci_low)}, {_g(s.ci_high)}]")
+                + _sub(_esc(s.verdict))
+                + _sub(beats)
+                + "</td>"
+            )
+        rows.append(f"<tr><td>{_esc(label)}</td>{''.join(cells)}</tr>")
+    conf = f"{result.spec.confidence:.0%}"
+    intro = (
+        f'<p class="small">Each cell: relMSE ÷ relMSE of <b>{_esc(result.baseline)}</b> '
+        f"(geometric mean over scenes; below 1 = lower error), its {conf} bootstrap interval "
+        f"over scenes ({result.spec.bootstrap} resamples, seed {result.spec.stats_seed}), the "
+        "verdict, in how many scenes the method has the lowest error of all methods (wins) and "
+        f"in how many it beats the baseline. {len(result.scenes)} scene(s): with few scenes "
+        "the intervals are wide, as they should be.</p>"
+    )
+    base_rows = [s for s in result.stats if s.verdict == IS_BASELINE]
+    wins = ", ".join(f"{s.spp} spp: {s.wins}" for s in base_rows)
+    tail = (
+        f'<p class="small">Wins of the baseline {_esc(result.baseline)}: {_esc(wins)}.</p>'
+        if wins
+        else ""
+    )
+    return intro + _table(["method", *(f"{s} spp" for s in spps)], rows) + tail
+
+
+def _scene_table(result: ExperimentResult, scene: SceneSummary) -> str:
+    recs = result.scene_records(scene.id)
+    spps = sorted({r["spp"] for r in recs})
+    by = {(r["method"], r["spp"]): r for r in recs}
+    rows = []
+    for label in result.labels:
+        cells = []
+        for spp in spps:
+            r = by.get((label, spp))
+            if r is None:
+                cells.append("<td>\u2013</td>")
+                continue
+            if r.get("failed"):
+                why = str(r.get("error") or r.get("reason") or "")
+                head = "could not run" if r.get("error") else "FAILED"
+                short = why if len(why) <= 60 else why[:59] + "…"
+                cells.append(f'<td class="fail" title="{_esc(why)}">{head}{_sub(_esc(short))}</td>')
+                continue
+            lim = _LIM_MARK if r.get("limited_by_reference") else ""
+            eq = r.get("equal_quality") or {}
+            eq_text = ""
+            if eq:
+                dag = "†" if eq.get("extrapolated") else ""
+                eq_text = _sub(f"= {_g(eq.get('spp'))} spp plain, {_g(eq.get('speedup'))}×{dag}")
+            times = f"{_sec(r.get('render_seconds'))} + {_sec(r.get('denoise_seconds'))}"
+            cls = "num front" if r.get("pareto") else "num"
+            error = _g((r.get("metrics") or {}).get("relmse"))
+            cells.append(f'<td class="{cls}">{error}{lim}{_sub(times)}{eq_text}</td>')
+        cls = ' class="noisy"' if label == NOISY else ""
+        rows.append(f"<tr{cls}><td>{_esc(label)}</td>{''.join(cells)}</tr>")
+    return (
+        '<p class="small">Each cell: relMSE; render + denoise seconds; for denoisers, the spp '
+        "plain rendering needs for the same error and the speed-up (× its time; † "
+        "extrapolated). "
+        "Green: on this scene's Pareto front. ≈: within 2× of the reference's noise floor.</p>"
+        + _table(["method", *(f"{s} spp" for s in spps)], rows)
+    )
+
+
+def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
+    shown = [
+        m
+        for m in result.metrics
+        if any((r.get("metrics") or {}).get(m) is not None for r in result.scene_records(scene.id))
+    ]
+    rows = []
+    for r in sorted(
+        result.scene_records(scene.id), key=lambda r: (result.labels.index(r["method"]), r["spp"])
+    ):
+        if r.get("failed"):
+            cells = f'<td class="fail" colspan="{len(shown)}">FAILED: {_esc(r.get("reason"))}</td>'
+        else:
+            cells = "".join(
+                f'<td class="num">{_g((r.get("metrics") or {}).get(m), 4)}</td>' for m in shown
+            )
+        runs = ", ".join(_g(v) for v in (r.get("timing") or {}).get("runs", []))
+        rows.append(
+            f'<tr><td>{_esc(r["method"])}</td><td class="num">{r["spp"]}</td>{cells}'
+            f'<td class="num">{_g(r.get("render_seconds"))}</td>'
+            f'<td class="num">{_g(r.get("denoise_seconds"))}{_sub(_esc(runs))}</td>'
+            f"<td>{_esc(r.get('device') or '')}</td></tr>"
+        )
+    head = [
+        "method",
+        "spp",
+        *(_esc(METRICS[m].label) for m in shown),
+        "render s",
+        "denoise s (runs)",
+        "device",
+    ]
+    summary = f"<summary>All metrics and timings of {_esc(scene.id)}</summary>"
+    return f"<details>{summary}{_table(head, rows)}</details>"
+
+
+def _strip(result: ExperimentResult, scene: SceneSummary, index: int, out: Path) -> str:
+    from mcdenoise.io import load_buffers
+
+    spp = result.strip_spp
+    ref_full = load_buffers(scene.reference_file)["color"].numpy().astype(np.float64)
+    exposure = auto_exposure(ref_full)
+    window = choose_crop(ref_full, exposure)
+    ref = crop(ref_full, window).astype(np.float64)
+    _, h, w = ref.shape
+    zoom = max(1, min(_MAX_ZOOM, 256 // max(h, w)))
+    size = f' width="{w * zoom}" height="{h * zoom}"'
+    images: list[tuple[str, np.ndarray | None, Mapping[str, Any]]] = []
+    for label in result.labels:
+        r = result.record(scene.id, spp, label)
+        if r is None:
+            continue
+        if label == NOISY:
+            img = load_buffers(scene.noisy_file, part=f"spp{spp}")["color"].numpy()
+        elif r.get("output"):
+            p = Path(r["output"])
+            p = p if p.is_absolute() else out / p
+            img = load_buffers(p)["color"].numpy() if p.is_file() else None
+        else:
+            img = None
+        images.append((label, None if img is None else crop(img, window), r))
+    maps = {lb: relmse_map(im, ref) for lb, im, _ in images if im is not None}
+    lo, hi = error_scale(list(maps.values())) if maps else (1e-6, 1e-2)
+    tag = f"strip_{index:02d}_{_slug(scene.id)}"
+    figures = []
+    missing = []
+    for i, (label, im, r) in enumerate(images):
+        if im is None:
+            why = str(r.get("error") or "output not kept")
+            missing.append(f"{label} ({why if len(why) <= 120 else why[:119] + '…'})")
+            continue
+        name, err_name = (
+            f"{tag}_{i:02d}_{_slug(label)}.png",
+            f"{tag}_{i:02d}_{_slug(label)}_err.png",
+        )
+        write_png(out / "images" / name, display(im, exposure))
+        write_png(out / "images" / err_name, false_color(maps[label], lo, hi))
+        e = relmse_of(r)
+        detail = (
+            f"FAILED: {r.get('reason')}"
+            if r.get("failed")
+            else f"relMSE {_g(e)}, {_sec(r.get('total_seconds'))}"
+        )
+        cls = ' class="failed"' if r.get("failed") else ""
+        figures.append(
+            f"<figure{cls}>{_img(name, label, size)}"
+            f"{_img(err_name, f'per-pixel relMSE of {label}', size)}"
+            f"<figcaption><b>{_esc(label)}</b>, {spp} spp<br>{_esc(detail)}</figcaption></figure>"
+        )
+    ref_name, bar_name = f"{tag}_reference.png", f"{tag}_colorbar.png"
+    write_png(out / "images" / ref_name, display(ref, exposure))
+    write_png(out / "images" / bar_name, colorbar(w * zoom, 12))
+    ticks = "".join(
+        f"<span>{10.0**e:.0e}</span>"
+        for e in range(round(math.log10(lo)), round(math.log10(hi)) + 1)
+    )
+    bar = _img(bar_name, "colour scale", f' width="{w * zoom}" height="12"')
+    figures.append(
+        f"<figure>{_img(ref_name, 'reference', size)}"
+        f'<div class="legend" style="width:{w * zoom}px">per-pixel relMSE (log scale)<br>'
+        f'{bar}<div class="ticks">{ticks}</div></div>'
+        f"<figcaption><b>reference</b>, {_esc(scene.reference_spp)} spp</figcaption></figure>"
+    )
+    y0, x0, ch, cw = window
+    full_h, full_w = ref_full.shape[1:]
+    if (ch, cw) == (full_h, full_w):
+        where = f"the whole {full_w}×{full_h} image"
+        where += f", magnified {zoom}×" if zoom > 1 else ""
+    else:
+        where = f"the crop x {x0}–{x0 + cw - 1}, y {y0}–{y0 + ch - 1}"
+        where += f" of the {full_w}×{full_h} image"
+    return (
+        f'<p class="small">Images at {spp} spp show {_esc(where)}. Same tonemap for all: exposure '
+        f"×{exposure:.3g} ({math.log2(exposure):+.2f} EV, chosen from the reference), clamped "
+        f"to [0, 1], sRGB. Under each image its per-pixel relMSE on one log scale from "
+        f'{lo:.0e} to {hi:.0e} (dark = small error).</p><div class="strip">{"".join(figures)}</div>'
+        + (f'<p class="notes">Not shown: {_esc("; ".join(missing))}</p>' if missing else "")
+    )
+
+
+def _scene_section(
+    result: ExperimentResult, scene: SceneSummary, index: int, out: Path, plots_ok: bool
+) -> str:
+    c = scene.curve
+    facts = [
+        f"reference {_esc(scene.reference_spp)} spp, seed {_esc(scene.seed)}, "
+        f"{_esc(scene.variant)}",
+        (
+            f"reference noise floor {_g(scene.noise_floor)} (expected relMSE of the reference "
+            "itself)"
+            if scene.noise_floor is not None
+            else _esc(scene.floor_note or "noise floor unknown")
+        ),
+    ]
+    if c is not None:
+        slope = c.slope()
+        facts.append(
+            f"noisy curve slope {_g(slope)} in log-log (Monte Carlo: −1)"
+            if slope is not None
+            else "one level: no slope"
+        )
+        facts.append(
+            f"plain rendering costs {_g(c.seconds_per_spp)} s per spp (at {c.spp[-1]} spp, JIT "
+            "excluded)"
+        )
+    parts = [
+        f'<h2 id="scene-{_esc(_slug(scene.id))}">Scene: {_esc(scene.id)}</h2>',
+        f'<p class="small">{"; ".join(facts)}.</p>',
+    ]
+    if plots_ok:
+        names = _scene_plots(result, scene, index, out)
+        parts.append(
+            '<div class="plots">'
+            + "".join(f"<figure>{_img(n, n)}</figure>" for n in names)
+            + "</div>"
+        )
+    parts.append(_scene_table(result, scene))
+    summary = f"<summary>Equal-time table of {_esc(scene.id)}</summary>"
+    parts.append(f"<details>{summary}{_equal_time_table(scene.equal_time)}</details>")
+    parts.append(_all_metrics_table(result, scene))
+    parts.append(f"<h3>Images at {result.strip_spp} spp</h3>")
+    parts.append(_strip(result, scene, index, out))
+    return "".join(parts)
+
+
+def _provenance(result: ExperimentResult) -> str:
+    prov = result.provenance
+    pk = prov.get("packages", {})
+    machine = prov.get("machine", {})
+    rows = [
+        ("mcdenoise", prov.get("mcdenoise_version")),
+        ("git commit", prov.get("git_commit")),
+        (
+            "packages",
+            ", ".join(f"{k} {v}" for k, v in pk.items() if v)
+            + (
+                " (not installed: " + ", ".join(k for k, v in pk.items() if not v) + ")"
+                if any(not v for v in pk.values())
+                else ""
+            ),
+        ),
+        ("machine", ", ".join(f"{k}: {v}" for k, v in machine.items())),
+        ("data folder", prov.get("data_folder")),
+        ("data hash", f"{prov.get('data_hash')} ({prov.get('data_hash_method')})"),
+        (
+            "render seeds",
+            f"base seed {result.spec.seed}; per image: "
+            + ", ".join(f"{s.id} {s.seed}" for s in result.scenes),
+        ),
+        (
+            "statistics seed",
+            f"{result.spec.stats_seed} ({result.spec.bootstrap} bootstrap resamples)",
+        ),
+        ("spec", result.spec.source),
+    ]
+    body = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in rows)
+    from mcdenoise.experiments.analysis import definitions
+
+    defs = "".join(
+        f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>"
+        for k, v in definitions(result.metrics).items()
+    )
+    metric_rows = "".join(
+        f"<tr><th>{_esc(METRICS[m].label)}</th>"
+        f"<td>{_esc(METRICS[m].definition)}; {_esc(METRICS[m].space)}</td></tr>"
+        for m in result.metrics
+    )
+    return (
+        '<h2 id="definitions">Definitions</h2><table class="meta">'
+        + defs
+        + metric_rows
+        + "</table>"
+        '<h2 id="provenance">Provenance</h2><table class="meta">' + body + "</table>"
+    )
+
+
+def render_html(result: ExperimentResult, out_dir: str | os.PathLike[str]) -> str:
+    """The report page; writes the PNGs it shows into ``out_dir/images/``."""
+    from mcdenoise.experiments.plots import plots_unavailable
+
+    out = Path(out_dir)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    reason = plots_unavailable()
+    nav = [
+        '<a href="#overall">All scenes</a>',
+        '<a href="#equal-time">Equal time</a>',
+        '<a href="#equal-quality">Equal quality</a>',
+        '<a href="#statistics">Statistics</a>',
+    ]
+    nav += [f'<a href="#scene-{_esc(_slug(s.id))}">{_esc(s.id)}</a>' for s in result.scenes]
+    nav += ['<a href="#definitions">Definitions</a>', '<a href="#provenance">Provenance</a>']
+    parts = []
+    if result.spec.description:
+        parts.append(f"<p>{_esc(result.spec.description)}</p>")
+    parts.append(f"<nav>{' '.join(nav)}</nav>")
+    parts.append(f'<div class="howto"><b>How to read this report</b>{HOW_TO_READ}</div>')
+    parts.append(_findings(result))
+    parts.append(_run_table(result))
+    if result.notes:
+        parts.append('<div class="warn">' + "<br>".join(_esc(n) for n in result.notes) + "</div>")
+    parts.append('<h2 id="overall">All scenes</h2>')
+    if reason is None:
+        names = _overall_plots(result, out)
+        parts.append(
+            '<div class="plots">'
+            + "".join(f"<figure>{_img(n, n)}</figure>" for n in names[:2])
+            + "</div>"
+        )
+    else:
+        names = []
+        parts.append(f'<p class="notes">No plots: {_esc(reason)}</p>')
+    parts.append(_overall_error_table(result))
+    parts.append('<h2 id="equal-time">Equal time: the best choice for a time budget</h2>')
+    parts.append(
+        '<p class="small">Over all scenes (mean total seconds, geometric mean relMSE). '
+        "Budgets: "
+        + ("as given by the spec" if result.spec.budgets else "log-spaced over the measured times")
+        + ".</p>"
+    )
+    parts.append(_equal_time_table(result.overall_equal_time))
+    parts.append('<h2 id="equal-quality">Equal quality: what plain rendering would need</h2>')
+    if names:
+        parts.append(f'<div class="plots"><figure>{_img(names[2], names[2])}</figure></div>')
+    parts.append(_overall_eq_table(result))
+    parts.append('<h2 id="statistics">Statistics over scenes</h2>')
+    parts.append(_stats_table(result))
+    for i, scene in enumerate(result.scenes):
+        parts.append(_scene_section(result, scene, i, out, reason is None))
+    parts.append(_provenance(result))
+    template = Template(
+        resources.files("mcdenoise.experiments")
+        .joinpath("templates/experiment.html")
+        .read_text("utf-8")
+    )
+    return template.substitute(
+        title=_esc(f"Experiment: {result.spec.name} — what accuracy costs in time"),
+        version=_esc(result.provenance.get("mcdenoise_version", "")),
+        created=_esc(result.created),
+        body="\n".join(p for p in parts if p),
+    )

@@ -1,0 +1,527 @@
+"""Run an experiment: render what is missing, denoise every input with every method, time it,
+measure it, and assemble the report.
+
+:func:`run_experiment` is what ``mcdenoise eval --experiment SPEC -o DIR`` calls:
+
+1. :func:`~mcdenoise.experiments.dataset.prepare_data` renders the missing images into the
+   render folder (``DIR/data`` by default; resumable, the layout of ``mcdenoise render``);
+2. :func:`plan_methods` turns the spec's methods and sweeps into labelled entries (``noisy``
+   first: plain rendering, denoise time 0); methods that cannot run here (e.g. OIDN without
+   ``pyoidn``) are *skipped*, with the reason, and listed in the report;
+3. every **unit** — one (scene, spp level, method) — is run: the level is read, the method is
+   run ``warmup`` times untimed and ``repetitions`` times timed
+   (:mod:`~mcdenoise.experiments.timing`), the last output is written to
+   ``DIR/outputs/<scene>_spp<n>_<label>.exr`` (with the method, parameters, median seconds,
+   device and source in its header) and every metric is computed against the reference;
+   the unit's record is then written atomically to ``DIR/work/<scene>/spp<n>/<label>.json``;
+4. the report (``results.json``, ``results.csv``, ``report.html`` and its PNGs) is assembled
+   from the unit records (:mod:`~mcdenoise.experiments.analysis`,
+   :mod:`~mcdenoise.experiments.report`).
+
+Resume: a unit whose record exists with the same fingerprint (scene data, spp, label, method,
+resolved parameters, metrics, repetitions, warm-up, device, threads, mcdenoise version) is not
+run again, so an interrupted experiment (Ctrl-C, a crash) continues where it stopped and a
+finished one is only re-assembled. Delete ``DIR/work`` to time everything again.
+
+A method that refuses an input (a :class:`~mcdenoise.errors.McdenoiseError`, e.g. a buffer it
+requires is missing in an AO scene) gives a unit with ``error`` set, shown in the report;
+any other exception stops the run (finished units stay valid).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import re
+import zlib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcdenoise import __version__
+from mcdenoise.errors import McdenoiseError
+from mcdenoise.eval.metrics import compute_metrics
+from mcdenoise.eval.results import jsonable
+from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepare_data
+from mcdenoise.experiments.spec import NOISY, ExperimentError, ExperimentSpec
+from mcdenoise.experiments.timing import machine_info, time_runs, torch_threads
+from mcdenoise.io.atomic import write_text_atomic
+
+#: Version of the unit records in ``DIR/work``; bump when their fields change meaning.
+UNIT_SCHEMA = "mcdenoise.experiment-unit/1"
+WORK = "work"
+OUTPUTS = "outputs"
+
+
+@dataclass(frozen=True)
+class MethodEntry:
+    """One column of the experiment: a registry method with parameter overrides, or noisy.
+
+    Attributes:
+        label: how the report names it (``nlm``, ``xbf[kernel_size=5]``, ``noisy``).
+        method: registry name (``cross-bilateral`` for ``xbf``), or ``"noisy"``.
+        overrides: parameters given by the spec (defaults fill the rest).
+        summary: the registry's one-line description.
+    """
+
+    label: str
+    method: str
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+    summary: str = ""
+
+    @property
+    def is_noisy(self) -> bool:
+        return self.method == NOISY
+
+    def params(self) -> dict[str, Any]:
+        """The resolved parameters (defaults updated with the overrides); ``{}`` for noisy."""
+        if self.is_noisy:
+            return {}
+        from mcdenoise.denoise import get_method
+
+        return get_method(self.method).resolve_params(self.overrides)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "label": self.label,
+            "method": self.method,
+            "overrides": dict(self.overrides),
+            "params": self.params(),
+            "summary": self.summary,
+        }
+
+
+def _value_text(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float) and v.is_integer():
+        return repr(v)
+    return str(v)
+
+
+def plan_methods(spec: ExperimentSpec) -> tuple[list[MethodEntry], dict[str, str]]:
+    """The spec's methods as entries (``noisy`` first, then the methods in registry or spec
+    order, then the sweeps) and the skipped ones: label -> reason it cannot run here.
+
+    ``methods = "all"`` takes every registered method, so a method added to the registry is
+    in the next experiment without any change here.
+
+    Raises:
+        ExperimentError: two entries would get the same label.
+    """
+    from mcdenoise.denoise import get_method, methods
+
+    entries = [MethodEntry(NOISY, NOISY, {}, "plain Monte Carlo rendering, no denoiser")]
+    skipped: dict[str, str] = {}
+    if spec.methods == "all":
+        names = [m.name for m in methods()]
+    else:
+        names = [n for n in spec.methods if n != NOISY]
+    for name in names:
+        m = get_method(name)
+        overrides = dict(spec.params.get(name) or spec.params.get(m.name) or {})
+        reason = m.unavailable()
+        if reason:
+            skipped[name] = reason
+            continue
+        entries.append(MethodEntry(name, m.name, overrides, m.summary))
+    for sw in spec.sweeps:
+        m = get_method(sw.method)
+        base = {**(spec.params.get(sw.method) or spec.params.get(m.name) or {}), **sw.params}
+        for value in sw.values:
+            label = f"{sw.method}[{sw.param}={_value_text(value)}]"
+            reason = m.unavailable()
+            if reason:
+                skipped[label] = reason
+                continue
+            entries.append(MethodEntry(label, m.name, {**base, sw.param: value}, m.summary))
+    labels = [e.label for e in entries]
+    dup = sorted({x for x in labels if labels.count(x) > 1})
+    if dup:
+        raise ExperimentError(f"{spec.source}: method label(s) {', '.join(dup)} appear twice")
+    return entries, skipped
+
+
+def slug(label: str) -> str:
+    """A file-name-safe form of a label; labels that need changing get a short hash suffix,
+    so two labels never share a file.
+
+    >>> slug("nlm"), slug("xbf[kernel_size=5]")
+    ('nlm', 'xbf_kernel_size_5-e98a451a')
+    """
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", label).strip("._") or "method"
+    if safe == label:
+        return safe
+    return f"{safe}-{zlib.crc32(label.encode('utf-8')):08x}"
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One (scene, spp level, method) of the experiment."""
+
+    scene: SceneData
+    level: Level
+    entry: MethodEntry
+
+    @property
+    def key(self) -> tuple[str, int, str]:
+        return (self.scene.id, self.level.spp, self.entry.label)
+
+    def path(self, out: Path) -> Path:
+        """Where the unit's record is kept: ``DIR/work/<scene>/spp<n>/<label>.json``."""
+        return (
+            out
+            / WORK
+            / slug(self.scene.id)
+            / f"spp{self.level.spp}"
+            / f"{slug(self.entry.label)}.json"
+        )
+
+    def output_path(self, out: Path) -> Path:
+        return (
+            out
+            / OUTPUTS
+            / f"{slug(self.scene.id)}_spp{self.level.spp}_{slug(self.entry.label)}.exr"
+        )
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """What, besides the unit itself, decides a unit's numbers (part of its fingerprint)."""
+
+    metrics: tuple[str, ...]
+    repetitions: int
+    warmup: int
+    device: str
+    threads: int | None
+    save_output: Callable[[int], bool]
+
+
+def fingerprint(unit: Unit, settings: RunSettings) -> str:
+    """Hash of everything that decides a unit's record; a cached record is reused only when
+    it matches."""
+    payload = {
+        "schema": UNIT_SCHEMA,
+        "version": __version__,
+        "scene": unit.scene.fingerprint,
+        "spp": unit.level.spp,
+        "part": unit.level.part,
+        "label": unit.entry.label,
+        "method": unit.entry.method,
+        "params": unit.entry.params(),
+        "metrics": list(settings.metrics),
+        "repetitions": settings.repetitions if not unit.entry.is_noisy else 0,
+        "warmup": settings.warmup if not unit.entry.is_noisy else 0,
+        "device": settings.device if not unit.entry.is_noisy else None,
+        "threads": settings.threads if not unit.entry.is_noisy else None,
+    }
+    text = json.dumps(jsonable(payload), sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:20]
+
+
+def read_unit(path: Path, expected: str | None = None) -> dict[str, Any] | None:
+    """A unit record, or ``None`` when absent, unreadable, or of another fingerprint."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if not isinstance(data, dict) or data.get("schema") != UNIT_SCHEMA:
+        return None
+    if expected is not None and data.get("fingerprint") != expected:
+        return None
+    return data
+
+
+def _relative(p: Path, out: Path) -> str:
+    try:
+        return p.resolve().relative_to(out.resolve()).as_posix()
+    except ValueError:
+        return str(p.resolve())
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.UTC).astimezone().isoformat(timespec="seconds")
+
+
+def _load_color(path: Path, part: str | None = None) -> tuple[np.ndarray, Any]:
+    from mcdenoise.io import load_buffers
+
+    buffers = load_buffers(path, part=part)
+    return buffers["color"].numpy(), buffers
+
+
+def run_unit(
+    unit: Unit,
+    buffers: Any,
+    reference: np.ndarray,
+    out: Path,
+    settings: RunSettings,
+    device: Any,
+) -> dict[str, Any]:
+    """Run one unit on its already loaded input ``buffers`` (``FeatureBuffers`` of the level)
+    against ``reference`` (``(3, H, W)`` float32 linear HDR RGB); return its record (not yet
+    written)."""
+    entry, level, scene = unit.entry, unit.level, unit.scene
+    record: dict[str, Any] = {
+        "schema": UNIT_SCHEMA,
+        "fingerprint": fingerprint(unit, settings),
+        "scene": scene.id,
+        "spp": level.spp,
+        "method": entry.label,
+        "base_method": entry.method,
+        "params": entry.params(),
+        "input": {"file": str(scene.noisy.resolve()), "part": level.part},
+        "render_seconds": level.render_seconds,
+        "render_jit_seconds_excluded": level.jit_seconds,
+        "denoise_seconds": 0.0,
+        "timing": None,
+        "device": None,
+        "threads": None,
+        "output": None,
+        "error": None,
+        "notes": [],
+    }
+    ref_name = str(scene.reference)
+    if entry.is_noisy:
+        image = buffers["color"].numpy()
+        name = f"{scene.noisy}#{level.part}"
+    else:
+        from mcdenoise.denoise import denoise, get_method
+
+        method = get_method(entry.method)
+        dev = device
+        if dev.type not in method.devices:
+            record["notes"].append(f"{entry.method} does not run on {dev.type}: ran on the CPU")
+            import torch
+
+            dev = torch.device("cpu")
+
+        def once() -> tuple[Any, float, str]:
+            r = denoise(buffers, method, params=entry.overrides, device=dev)
+            return r, r.seconds, r.device
+
+        try:
+            result, timing = time_runs(
+                once, repetitions=settings.repetitions, warmup=settings.warmup
+            )
+        except McdenoiseError as err:
+            record["error"] = " ".join(str(err).split())
+            record["total_seconds"] = None
+            record["metrics"] = dict.fromkeys(settings.metrics)
+            record["unavailable"] = {}
+            record["failed"] = True
+            record["reason"] = f"could not run: {record['error']}"
+            record["bad_pixels"] = 0
+            record["finished"] = _now()
+            return record
+        record["denoise_seconds"] = timing.median
+        record["timing"] = timing.to_dict()
+        record["device"] = timing.device
+        record["threads"] = timing.threads
+        image = result.image.numpy()
+        name = str(unit.output_path(out))
+        if settings.save_output(level.spp):
+            _write_output(unit, result, timing.median, buffers, out)
+            record["output"] = _relative(unit.output_path(out), out)
+    values = compute_metrics(
+        image, reference, list(settings.metrics), output_name=name, reference_name=ref_name
+    )
+    record["total_seconds"] = level.render_seconds + float(record["denoise_seconds"])
+    record["metrics"] = values.values
+    record["unavailable"] = values.unavailable
+    record["failed"] = values.failed
+    record["reason"] = values.reason
+    record["bad_pixels"] = values.bad_pixels
+    record["finished"] = _now()
+    return record
+
+
+def _write_output(unit: Unit, result: Any, median: float, buffers: Any, out: Path) -> None:
+    from mcdenoise.io import FeatureBuffers, save_buffers
+
+    path = unit.output_path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    image = FeatureBuffers(
+        {"color": result.image},
+        spp=buffers.spp,
+        data_window=buffers.data_window,
+        display_window=buffers.display_window,
+    )
+    attrs: dict[str, Any] = result.attributes()
+    attrs["mcdenoise:seconds"] = float(median)  # the median of the timed runs
+    attrs["mcdenoise:label"] = unit.entry.label
+    attrs["mcdenoise:source"] = str(unit.scene.noisy.resolve())
+    attrs["mcdenoise:source_part"] = unit.level.part
+    attrs["mcdenoise:spp"] = int(unit.level.spp)
+    save_buffers(path, image, attributes=attrs)
+
+
+@dataclass
+class RunSummary:
+    """What :func:`run_experiment` did.
+
+    Attributes:
+        ran: keys ``(scene, spp, label)`` of the units run now.
+        reused: keys of the units whose finished records were reused.
+        rendered, render_skipped: image ids rendered now / already finished.
+        paths: the report's files (``json``, ``csv``, ``html``, ``images``).
+        result: the assembled :class:`~mcdenoise.experiments.analysis.ExperimentResult`.
+    """
+
+    ran: list[tuple[str, int, str]] = field(default_factory=list)
+    reused: list[tuple[str, int, str]] = field(default_factory=list)
+    rendered: list[str] = field(default_factory=list)
+    render_skipped: list[str] = field(default_factory=list)
+    paths: dict[str, Path] = field(default_factory=dict)
+    result: Any = None
+
+
+def plan_units(scenes: Sequence[SceneData], entries: Sequence[MethodEntry]) -> list[Unit]:
+    """Every (scene, level, method), scene by scene, lowest level first, noisy first."""
+    return [Unit(s, lv, e) for s in scenes for lv in s.levels for e in entries]
+
+
+def run_units(
+    units: Sequence[Unit],
+    out: Path,
+    settings: RunSettings,
+    *,
+    device: Any,
+    progress: bool = False,
+    summary: RunSummary | None = None,
+) -> dict[tuple[str, int, str], dict[str, Any]]:
+    """Run the units that have no valid record yet; return every unit's record by key.
+
+    Each record is written atomically as soon as its unit finishes, so an exception or
+    Ctrl-C loses at most the unit in progress.
+    """
+    from tqdm.auto import tqdm
+
+    summary = summary if summary is not None else RunSummary()
+    records: dict[tuple[str, int, str], dict[str, Any]] = {}
+    todo: list[Unit] = []
+    for unit in units:
+        cached = read_unit(unit.path(out), fingerprint(unit, settings))
+        if cached is not None and _output_present(cached, out):
+            records[unit.key] = cached
+            summary.reused.append(unit.key)
+        else:
+            todo.append(unit)
+    loaded: dict[str, Any] = {}
+    with tqdm(total=len(todo), desc="experiment", unit="run", disable=not progress) as bar:
+        for unit in todo:
+            scene, level = unit.scene, unit.level
+            ref_key = f"ref:{scene.id}"
+            if ref_key not in loaded:
+                loaded.clear()
+                loaded[ref_key] = _load_color(scene.reference)[0]
+            level_key = f"{scene.id}#{level.part}"
+            if level_key not in loaded:
+                for k in [k for k in loaded if not k.startswith("ref:")]:
+                    del loaded[k]
+                loaded[level_key] = _load_color(scene.noisy, level.part)[1]
+            bar.set_postfix_str(f"{scene.id} {level.spp} spp {unit.entry.label}", refresh=False)
+            record = run_unit(unit, loaded[level_key], loaded[ref_key], out, settings, device)
+            path = unit.path(out)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            text = json.dumps(jsonable(record), indent=1, ensure_ascii=False, allow_nan=False)
+            write_text_atomic(path, text + "\n")
+            records[unit.key] = read_unit(path) or record
+            summary.ran.append(unit.key)
+            bar.update(1)
+    return records
+
+
+def _output_present(record: Mapping[str, Any], out: Path) -> bool:
+    output = record.get("output")
+    if not output:
+        return True
+    p = Path(output)
+    return (p if p.is_absolute() else out / p).is_file()
+
+
+def run_experiment(
+    spec: ExperimentSpec,
+    out: str | os.PathLike[str],
+    *,
+    progress: bool = False,
+    metrics: Sequence[str] | None = None,
+) -> RunSummary:
+    """Run the experiment ``spec`` into the folder ``out`` and write its report there.
+
+    Args:
+        spec: a validated :class:`~mcdenoise.experiments.spec.ExperimentSpec`.
+        out: the experiment folder (created): ``report.html``, ``results.json``,
+            ``results.csv``, ``images/``, ``outputs/``, ``work/`` and, by default, ``data/``.
+        progress: tqdm progress bars on stderr (rendering, then the units).
+        metrics: overrides the spec's metrics (must include relmse).
+
+    Returns:
+        A :class:`RunSummary`.
+
+    Raises:
+        ExperimentError, SpecError, RenderError, InputError: bad spec, folder or settings.
+    """
+    from mcdenoise.denoise import resolve_device
+    from mcdenoise.eval.metrics import resolve_metrics
+    from mcdenoise.experiments.analysis import assemble
+    from mcdenoise.experiments.report import write_experiment_report
+
+    root = Path(out)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ExperimentError(
+            f"cannot create the experiment folder {root}: {err.strerror or err}"
+        ) from None
+    names = resolve_metrics(metrics if metrics is not None else spec.metrics)
+    if "relmse" not in names:
+        raise ExperimentError("the metrics must include relmse (the curves and tables use it)")
+    entries, skipped = plan_methods(spec)
+    device = resolve_device(spec.device)
+    summary = RunSummary()
+    folder, ids, rendered = prepare_data(spec, root, progress=progress)
+    if rendered is not None:
+        summary.rendered = list(rendered.rendered)
+        summary.render_skipped = list(rendered.skipped)
+    scenes = load_dataset(
+        folder, ids, spec.spp if (spec.folder is None or spec.spp_given) else None
+    )
+    levels = [lv.spp for lv in scenes[0].levels]
+    strip = spec.strip_level(levels)
+    if strip not in levels:
+        raise ExperimentError(f"{spec.source}: report.strip_spp {strip} is not a level of {levels}")
+    settings = RunSettings(
+        metrics=tuple(names),
+        repetitions=spec.repetitions,
+        warmup=spec.warmup,
+        device=str(device),
+        threads=spec.threads,
+        save_output=lambda spp: spec.outputs == "all" or spp == strip,
+    )
+    units = plan_units(scenes, entries)
+    at_start = machine_info()
+    with torch_threads(spec.threads):
+        records = run_units(
+            units, root, settings, device=device, progress=progress, summary=summary
+        )
+    result = assemble(
+        spec,
+        scenes=scenes,
+        entries=entries,
+        skipped=skipped,
+        records=[records[u.key] for u in units],
+        metrics=names,
+        data_folder=folder,
+        strip_spp=strip,
+        out=root,
+        machine_at_start=at_start,
+    )
+    summary.result = result
+    summary.paths = write_experiment_report(result, root)
+    return summary

@@ -1,0 +1,562 @@
+"""Experiment specs: which scenes, spp ladder, reference, methods, metrics and repetitions.
+
+An experiment spec is a TOML file (``data/experiments/*.toml``) read by
+``mcdenoise eval --experiment SPEC -o DIR``. This module parses and validates it; it renders
+nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
+
+    name = "demo"                         # default: the file's stem
+    description = "..."                   # optional
+    methods = "all"                       # every registered method (unavailable ones are
+                                          # listed as skipped, with the reason), or a list of
+                                          # registry names/aliases; "noisy" is always included
+    metrics = ["relmse", "ssim"]          # default: every registered metric
+    repetitions = 3                       # timed denoise runs per input (median reported)
+    warmup = 1                            # untimed runs before them, per input
+    device = "cpu"                        # auto, cpu or cuda (a method that cannot run there
+                                          # runs on the CPU, and the record says so)
+    threads = 2                           # torch threads while denoising (default: torch's)
+
+    [scenes]                              # either scene specs to render ...
+    specs = ["../scenes/cornell.toml"]    # files or folders of *.toml, relative to this file
+    random = 4                            # plus N procedural scenes (default 0), scene k
+                                          # being random_spec([render] seed, k)
+    # folder = "../generated/train"       # ... or an existing `mcdenoise render` folder
+                                          # (relative to this file; used as it is, never
+                                          # rendered into)
+
+    [render]                              # how missing images are rendered
+    resolution = 128                      # N or [width, height]
+    spp = [1, 2, 4, 8, 16, 32, 64]        # the noisy ladder (progressive levels)
+    ref_spp = 1024
+    variant = "auto"                      # Mitsuba variant
+    seed = 0                              # base seed of the images' sampler seeds and of
+                                          # the procedural scenes (as `mcdenoise render --seed`)
+    pass_spp = 128
+    folder = "data"                       # render folder, relative to the output folder DIR
+                                          # (kept: a second run renders nothing)
+
+    [params.nlm]                          # parameter overrides of one method
+    search_radius = 8
+
+    [[sweep]]                             # one extra method per value, labelled
+    method = "xbf"                        # "xbf[kernel_size=5]" etc.
+    param = "kernel_size"
+    values = [5, 11, 21]
+    params = { sigma_spatial = 4.0 }      # optional: fixed overrides for every value
+
+    [stats]
+    baseline = "oidn"                     # per-scene relMSE ratios are taken to this method
+                                          # (a label); "noisy" when it is not in the run
+    bootstrap = 2000                      # bootstrap resamples of the scenes
+    confidence = 0.95
+    seed = 0                              # seed of the bootstrap
+
+    [report]
+    strip_spp = 8                         # spp level of the image strips (default: the middle
+                                          # level of the ladder)
+    budgets = [0.5, 1, 2, 4]              # equal-time budgets in seconds (default: 8
+                                          # log-spaced budgets over the measured total times)
+    outputs = "all"                       # keep the denoised EXR of every level ("all") or of
+                                          # the strip level only ("strip")
+
+With ``[scenes] folder``, the ladder, size and reference come from that folder's manifest;
+``[render]`` may then only give ``spp``, a subset of the folder's levels.
+
+Errors are :class:`ExperimentError` naming the file and the key, e.g.
+``demo.toml: sweep[0].values[1]: method 'cross-bilateral' ...``. Method names and sweep
+parameters are checked against the registry (:mod:`mcdenoise.registry`) when the spec is
+loaded, so a typo fails before anything is rendered.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcdenoise.errors import McdenoiseError
+
+#: The label of plain Monte Carlo rendering (no denoiser; denoise time 0).
+NOISY = "noisy"
+#: Values of ``[report] outputs``.
+OUTPUT_MODES = ("all", "strip")
+#: Values of ``device``.
+DEVICES = ("auto", "cpu", "cuda")
+
+_TOP_KEYS = (
+    "name",
+    "description",
+    "methods",
+    "metrics",
+    "repetitions",
+    "warmup",
+    "device",
+    "threads",
+    "scenes",
+    "render",
+    "params",
+    "sweep",
+    "stats",
+    "report",
+)
+_SCENE_KEYS = ("specs", "random", "folder")
+_RENDER_KEYS = ("resolution", "spp", "ref_spp", "variant", "seed", "pass_spp", "folder")
+_SWEEP_KEYS = ("method", "param", "values", "params")
+_STATS_KEYS = ("baseline", "bootstrap", "confidence", "seed")
+_REPORT_KEYS = ("strip_spp", "budgets", "outputs")
+
+
+class ExperimentError(McdenoiseError, ValueError):
+    """A bad experiment spec or experiment folder; the message names the file and key."""
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One ``[[sweep]]``: ``method`` run once per value of ``param`` (plus fixed ``params``)."""
+
+    method: str
+    param: str
+    values: tuple[Any, ...]
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    """A validated experiment spec (see the module docstring for the TOML schema).
+
+    Paths are absolute (resolved against the spec file's folder), except ``render_folder``,
+    which is relative to the output folder unless absolute.
+    """
+
+    name: str
+    source: str = "<spec>"
+    description: str = ""
+    scene_specs: tuple[Path, ...] = ()
+    random: int = 0
+    folder: Path | None = None
+    width: int = 128
+    height: int = 128
+    spp: tuple[int, ...] = (1, 2, 4, 8, 16)
+    ref_spp: int = 1024
+    variant: str = "auto"
+    seed: int = 0
+    pass_spp: int = 128
+    render_folder: str = "data"
+    methods: str | tuple[str, ...] = "all"
+    params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    sweeps: tuple[Sweep, ...] = ()
+    metrics: tuple[str, ...] | None = None
+    repetitions: int = 3
+    warmup: int = 1
+    device: str = "cpu"
+    threads: int | None = None
+    baseline: str = NOISY
+    bootstrap: int = 2000
+    confidence: float = 0.95
+    stats_seed: int = 0
+    strip_spp: int | None = None
+    budgets: tuple[float, ...] | None = None
+    outputs: str = "all"
+    spp_given: bool = True
+
+    def strip_level(self, levels: Sequence[int]) -> int:
+        """The spp level of the image strips among ``levels``: ``strip_spp`` or the middle."""
+        if self.strip_spp is not None:
+            return self.strip_spp
+        ordered = sorted(levels)
+        return ordered[(len(ordered) - 1) // 2]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form, written into results.json (the resolved spec of the run)."""
+        return {
+            "name": self.name,
+            "source": self.source,
+            "description": self.description,
+            "scenes": {
+                "specs": [str(p) for p in self.scene_specs],
+                "random": self.random,
+                "folder": None if self.folder is None else str(self.folder),
+            },
+            "render": {"spp": list(self.spp) if self.spp_given else None, "from_folder": True}
+            if self.folder is not None
+            else {
+                "width": self.width,
+                "height": self.height,
+                "spp": list(self.spp),
+                "ref_spp": self.ref_spp,
+                "variant": self.variant,
+                "seed": self.seed,
+                "pass_spp": self.pass_spp,
+                "folder": self.render_folder,
+            },
+            "methods": self.methods if isinstance(self.methods, str) else list(self.methods),
+            "params": {k: dict(v) for k, v in self.params.items()},
+            "sweeps": [
+                {"method": s.method, "param": s.param, "values": list(s.values), **_fixed(s)}
+                for s in self.sweeps
+            ],
+            "metrics": None if self.metrics is None else list(self.metrics),
+            "repetitions": self.repetitions,
+            "warmup": self.warmup,
+            "device": self.device,
+            "threads": self.threads,
+            "stats": {
+                "baseline": self.baseline,
+                "bootstrap": self.bootstrap,
+                "confidence": self.confidence,
+                "seed": self.stats_seed,
+            },
+            "report": {
+                "strip_spp": self.strip_spp,
+                "budgets": None if self.budgets is None else list(self.budgets),
+                "outputs": self.outputs,
+            },
+        }
+
+
+def _fixed(s: Sweep) -> dict[str, Any]:
+    return {"params": dict(s.params)} if s.params else {}
+
+
+# --- parsing ------------------------------------------------------------------------------
+
+
+class _Ctx:
+    """Where we are in the spec, for error messages."""
+
+    def __init__(self, source: str, base: Path | None) -> None:
+        self.source = source
+        self.base = base
+
+    def error(self, key: str, msg: str) -> ExperimentError:
+        return ExperimentError(f"{self.source}: {key + ': ' if key else ''}{msg}")
+
+    def resolve(self, value: str) -> Path:
+        p = Path(value).expanduser()
+        if not p.is_absolute() and self.base is not None:
+            p = self.base / p
+        return p.resolve()
+
+
+def _table(
+    ctx: _Ctx, key: str, value: Any, allowed: Sequence[str] | None = None
+) -> Mapping[str, Any]:
+    """``value`` as a table; with ``allowed``, unknown keys are an error naming them."""
+    if not isinstance(value, Mapping):
+        raise ctx.error(key, f"must be a table, got {type(value).__name__}")
+    if allowed is not None:
+        unknown = sorted(set(value) - set(allowed))
+        if unknown:
+            raise ctx.error(
+                key or "top level",
+                f"unknown key(s) {', '.join(unknown)} (allowed: {', '.join(allowed)})",
+            )
+    return value
+
+
+def _int(ctx: _Ctx, key: str, value: Any, *, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ctx.error(key, f"must be an integer, got {value!r}")
+    if value < lo:
+        raise ctx.error(key, f"must be >= {lo}, got {value}")
+    return value
+
+
+def _str(ctx: _Ctx, key: str, value: Any) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise ctx.error(key, f"must be a non-empty string, got {value!r}")
+    return value.strip()
+
+
+def _list(ctx: _Ctx, key: str, value: Any) -> list[Any]:
+    if isinstance(value, str) or not isinstance(value, Sequence) or not value:
+        raise ctx.error(key, f"must be a non-empty list, got {value!r}")
+    return list(value)
+
+
+def _spp_ladder(ctx: _Ctx, key: str, value: Any) -> tuple[int, ...]:
+    levels = tuple(_int(ctx, f"{key}[{i}]", v, lo=1) for i, v in enumerate(_list(ctx, key, value)))
+    if any(b <= a for a, b in itertools.pairwise(levels)):
+        raise ctx.error(key, f"must be strictly increasing, got {list(levels)}")
+    return levels
+
+
+def _scene_files(ctx: _Ctx, key: str, value: Any) -> tuple[Path, ...]:
+    files: list[Path] = []
+    for i, item in enumerate(_list(ctx, key, value)):
+        p = ctx.resolve(_str(ctx, f"{key}[{i}]", item))
+        if p.is_dir():
+            found = sorted(p.glob("*.toml"))
+            if not found:
+                raise ctx.error(f"{key}[{i}]", f"folder {item!r} holds no *.toml scene spec")
+            files.extend(found)
+        elif p.is_file():
+            files.append(p)
+        else:
+            raise ctx.error(f"{key}[{i}]", f"{item!r} not found (looked at {p})")
+    if len(set(files)) != len(files):
+        raise ctx.error(key, "names a scene spec twice")
+    return tuple(files)
+
+
+def _method_name(ctx: _Ctx, key: str, value: Any) -> str:
+    from mcdenoise.denoise import get_method
+
+    name = _str(ctx, key, value)
+    if name == NOISY:
+        return name
+    try:
+        get_method(name)
+    except McdenoiseError as err:
+        raise ctx.error(key, str(err)) from None
+    return name
+
+
+def _check_params(ctx: _Ctx, key: str, method: str, params: Mapping[str, Any]) -> None:
+    from mcdenoise.denoise import get_method
+
+    if method == NOISY:
+        if params:
+            raise ctx.error(key, "'noisy' (plain rendering) has no parameters")
+        return
+    try:
+        get_method(method).resolve_params(params)
+    except McdenoiseError as err:
+        raise ctx.error(key, str(err)) from None
+
+
+def parse_experiment(
+    data: Mapping[str, Any],
+    *,
+    source: str = "<spec>",
+    base: str | os.PathLike[str] | None = None,
+) -> ExperimentSpec:
+    """Validate an experiment spec given as a mapping (a parsed TOML file).
+
+    ``base`` is the folder relative scene paths are resolved against (the spec's folder).
+
+    Raises:
+        ExperimentError: a missing, unknown or invalid key; the message names ``source`` and
+            the key path.
+    """
+    ctx = _Ctx(source, Path(base) if base is not None else None)
+    top = _table(ctx, "", data, _TOP_KEYS)
+    name = top.get("name", Path(source).stem if source != "<spec>" else "experiment")
+    name = _str(ctx, "name", name)
+    description = top.get("description", "")
+    if not isinstance(description, str):
+        raise ctx.error("description", "must be a string")
+
+    # scenes
+    scenes = _table(ctx, "scenes", top.get("scenes", {}), _SCENE_KEYS)
+    folder = None
+    specs: tuple[Path, ...] = ()
+    random = _int(ctx, "scenes.random", scenes.get("random", 0), lo=0)
+    if "folder" in scenes:
+        if "specs" in scenes or random:
+            raise ctx.error("scenes", "give either folder or specs/random, not both")
+        folder = ctx.resolve(_str(ctx, "scenes.folder", scenes["folder"]))
+        if not folder.is_dir():
+            raise ctx.error("scenes.folder", f"{scenes['folder']!r} is not a folder ({folder})")
+    else:
+        if "specs" in scenes:
+            specs = _scene_files(ctx, "scenes.specs", scenes["specs"])
+        if not specs and not random:
+            raise ctx.error("scenes", "no scenes: give specs, random = N, or folder")
+
+    # render
+    render = _table(ctx, "render", top.get("render", {}), _RENDER_KEYS)
+    if folder is not None:
+        extra = sorted(set(render) - {"spp"})
+        if extra:
+            raise ctx.error(
+                f"render.{extra[0]}",
+                "not allowed with scenes.folder (size, reference and seeds come from the "
+                "folder's manifest; only spp, a subset of its levels, may be given)",
+            )
+    res = render.get("resolution", 128)
+    if isinstance(res, Sequence) and not isinstance(res, str):
+        if len(res) != 2:
+            raise ctx.error("render.resolution", f"must be N or [width, height], got {res!r}")
+        width = _int(ctx, "render.resolution[0]", res[0], lo=1)
+        height = _int(ctx, "render.resolution[1]", res[1], lo=1)
+    else:
+        width = height = _int(ctx, "render.resolution", res, lo=1)
+    spp_given = "spp" in render
+    spp = _spp_ladder(ctx, "render.spp", render.get("spp", [1, 2, 4, 8, 16]))
+    ref_spp = _int(ctx, "render.ref_spp", render.get("ref_spp", 1024), lo=1)
+    if folder is None and ref_spp <= spp[-1]:
+        raise ctx.error("render.ref_spp", f"must exceed the highest level {spp[-1]}, got {ref_spp}")
+    from mcdenoise.render.generate import VARIANT_CHOICES
+
+    variant = _str(ctx, "render.variant", render.get("variant", "auto"))
+    if variant not in VARIANT_CHOICES:
+        raise ctx.error("render.variant", f"{variant!r} is not one of {', '.join(VARIANT_CHOICES)}")
+    seed = _int(ctx, "render.seed", render.get("seed", 0), lo=0)
+    pass_spp = _int(ctx, "render.pass_spp", render.get("pass_spp", 128), lo=1)
+    render_folder = _str(ctx, "render.folder", render.get("folder", "data"))
+
+    # methods, parameters, sweeps
+    raw_methods = top.get("methods", "all")
+    methods: str | tuple[str, ...]
+    if raw_methods == "all":
+        methods = "all"
+    elif isinstance(raw_methods, str):
+        raise ctx.error("methods", f'must be "all" or a list of method names, got {raw_methods!r}')
+    else:
+        names = [
+            _method_name(ctx, f"methods[{i}]", v)
+            for i, v in enumerate(_list(ctx, "methods", raw_methods))
+        ]
+        if len(set(names)) != len(names):
+            raise ctx.error("methods", "names a method twice")
+        methods = tuple(names)
+    params_t = _table(ctx, "params", top.get("params", {}))
+    params: dict[str, dict[str, Any]] = {}
+    for mname, values in params_t.items():
+        key = f"params.{mname}"
+        _method_name(ctx, key, mname)
+        table = dict(_table(ctx, key, values))
+        _check_params(ctx, key, mname, table)
+        params[mname] = table
+    raw_sweeps = top.get("sweep", [])
+    if not isinstance(raw_sweeps, Sequence) or isinstance(raw_sweeps, str):
+        raise ctx.error("sweep", "must be a list of [[sweep]] tables")
+    sweeps = []
+    for i, raw in enumerate(raw_sweeps):
+        key = f"sweep[{i}]"
+        s = _table(ctx, key, raw, _SWEEP_KEYS)
+        for required in ("method", "param", "values"):
+            if required not in s:
+                raise ctx.error(f"{key}.{required}", "missing")
+        method = _method_name(ctx, f"{key}.method", s["method"])
+        if method == NOISY:
+            raise ctx.error(f"{key}.method", "'noisy' has no parameters to sweep")
+        param = _str(ctx, f"{key}.param", s["param"])
+        values = _list(ctx, f"{key}.values", s["values"])
+        fixed = dict(_table(ctx, f"{key}.params", s.get("params", {})))
+        if param in fixed:
+            raise ctx.error(f"{key}.params", f"also sets the swept parameter {param!r}")
+        _check_params(ctx, f"{key}.params", method, fixed)
+        for j, v in enumerate(values):
+            if isinstance(v, Mapping | list):
+                raise ctx.error(
+                    f"{key}.values[{j}]", f"must be a number, string or bool, got {v!r}"
+                )
+            _check_params(ctx, f"{key}.values[{j}]", method, {**fixed, param: v})
+        if len({repr(v) for v in values}) != len(values):
+            raise ctx.error(f"{key}.values", "lists a value twice")
+        sweeps.append(Sweep(method, param, tuple(values), fixed))
+
+    # metrics and timing
+    metrics = None
+    if "metrics" in top:
+        from mcdenoise.eval.metrics import resolve_metrics
+
+        raw = _list(ctx, "metrics", top["metrics"])
+        try:
+            metrics = tuple(resolve_metrics([_str(ctx, "metrics", m) for m in raw]))
+        except McdenoiseError as err:
+            raise ctx.error("metrics", str(err)) from None
+        if "relmse" not in metrics:
+            raise ctx.error("metrics", "must include relmse (the curves and tables use it)")
+    repetitions = _int(ctx, "repetitions", top.get("repetitions", 3), lo=1)
+    warmup = _int(ctx, "warmup", top.get("warmup", 1), lo=0)
+    device = _str(ctx, "device", top.get("device", "cpu"))
+    if device not in DEVICES:
+        raise ctx.error("device", f"{device!r} is not one of {', '.join(DEVICES)}")
+    threads = top.get("threads")
+    if threads is not None:
+        threads = _int(ctx, "threads", threads, lo=1)
+
+    # statistics
+    stats = _table(ctx, "stats", top.get("stats", {}), _STATS_KEYS)
+    baseline = _str(ctx, "stats.baseline", stats.get("baseline", NOISY))
+    bootstrap = _int(ctx, "stats.bootstrap", stats.get("bootstrap", 2000), lo=100)
+    confidence = stats.get("confidence", 0.95)
+    if (
+        isinstance(confidence, bool)
+        or not isinstance(confidence, int | float)
+        or not 0.5 <= confidence < 1
+    ):
+        raise ctx.error("stats.confidence", f"must be a number in [0.5, 1), got {confidence!r}")
+    stats_seed = _int(ctx, "stats.seed", stats.get("seed", 0), lo=0)
+
+    # report
+    report = _table(ctx, "report", top.get("report", {}), _REPORT_KEYS)
+    strip_spp = report.get("strip_spp")
+    if strip_spp is not None:
+        strip_spp = _int(ctx, "report.strip_spp", strip_spp, lo=1)
+        if (folder is None or spp_given) and strip_spp not in spp:
+            raise ctx.error("report.strip_spp", f"{strip_spp} is not a level of {list(spp)}")
+    budgets = None
+    if "budgets" in report:
+        raw_b = _list(ctx, "report.budgets", report["budgets"])
+        for j, b in enumerate(raw_b):
+            if (
+                isinstance(b, bool)
+                or not isinstance(b, int | float)
+                or not math.isfinite(b)
+                or b <= 0
+            ):
+                raise ctx.error(f"report.budgets[{j}]", f"must be seconds > 0, got {b!r}")
+        budgets = tuple(sorted(float(b) for b in raw_b))
+    outputs = _str(ctx, "report.outputs", report.get("outputs", "all"))
+    if outputs not in OUTPUT_MODES:
+        raise ctx.error("report.outputs", f"{outputs!r} is not one of {', '.join(OUTPUT_MODES)}")
+
+    return ExperimentSpec(
+        name=name,
+        source=source,
+        description=description,
+        scene_specs=specs,
+        random=random,
+        folder=folder,
+        width=width,
+        height=height,
+        spp=spp,
+        ref_spp=ref_spp,
+        variant=variant,
+        seed=seed,
+        pass_spp=pass_spp,
+        render_folder=render_folder,
+        methods=methods,
+        params=params,
+        sweeps=tuple(sweeps),
+        metrics=metrics,
+        repetitions=repetitions,
+        warmup=warmup,
+        device=device,
+        threads=threads,
+        baseline=baseline,
+        bootstrap=bootstrap,
+        confidence=float(confidence),
+        stats_seed=stats_seed,
+        strip_spp=strip_spp,
+        budgets=budgets,
+        outputs=outputs,
+        spp_given=spp_given,
+    )
+
+
+def load_experiment(path: str | os.PathLike[str]) -> ExperimentSpec:
+    """Read and validate an experiment spec (TOML); paths in it are relative to its folder.
+
+    Raises:
+        ExperimentError: the file is missing, not TOML, or invalid (message names file and key).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ExperimentError(
+            f"{p}: experiment spec not found" if not p.exists() else f"{p}: not a file"
+        )
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ExperimentError(f"{p}: not valid TOML: {' '.join(str(err).split())}") from None
+    return parse_experiment(data, source=str(p), base=p.parent)
