@@ -1,0 +1,24 @@
+"""The shipped Kalantari weights: present, loadable, and useful right after install."""
+
+from __future__ import annotations
+
+import pytest
+
+from mcdenoise.denoise import denoise
+from mcdenoise.eval.metrics import relmse
+from mcdenoise.io import load_buffers
+from mcdenoise.models.weights import load_kalantari, shipped_model_path
+
+
+@pytest.mark.parametrize("kind", ["xbf", "nlm"])
+def test_shipped_models_load_and_denoise_a_sample(samples_dir, kind) -> None:
+    path = shipped_model_path(f"kalantari-{kind}")
+    assert path.is_file() and path.stat().st_size < 500_000
+    model = load_kalantari(path)
+    assert model.card.kind == kind and model.card.guides == ["albedo", "normal", "depth", "position"]
+    # trained on data disjoint from every reported evaluation (seed 1000 random scenes)
+    assert all(name.startswith("random_s1000_") for name in model.card.training["train_images"])
+    b = load_buffers(samples_dir / "cornell_spp16.exr")
+    ref = load_buffers(samples_dir / "ref" / "cornell.exr")["color"]
+    out = denoise(b, f"kalantari-{kind}").image
+    assert relmse(out, ref) < 0.2 * relmse(b["color"], ref)
