@@ -103,13 +103,27 @@ def denoise(
         m.resolve_params(overrides)  # fail on a bad --param before reading anything
     if len(chosen) > 1 and output is not None and Path(output).suffix.lower() == ".exr":
         raise click.UsageError("several methods write several files: give -o a folder")
+    if overrides and method == "auto":
+        raise click.UsageError(
+            "--param needs an explicit --method (the default depends on the input)"
+        )
+    read = dn.ReadOptions(profile=profile, mapping=mapping, part=part, spp=spp)
     jobs = []
-    for m in chosen:
-        outs = dn.plan_outputs(files, output, m.name, part=part)
-        jobs += [(src, dst, m) for src, dst in zip(files, outs)]
+    if method == "auto":  # the best method each input has the buffers for
+        from mcdenoise.io import load_buffers
+        from mcdenoise.registry import best_method
+
+        dn.plan_outputs(files, output, "auto", part=part)  # refuses -o x.exr for several inputs
+        for src in files:
+            b = load_buffers(src, profile=profile, mapping=mapping, part=part, spp=spp)
+            m = best_method(b)
+            jobs.append((src, dn.plan_outputs([src], output, m.name, part=part)[0], m))
+    else:
+        for m in chosen:
+            outs = dn.plan_outputs(files, output, m.name, part=part)
+            jobs += [(src, dst, m) for src, dst in zip(files, outs)]
     if output is not None and Path(output).suffix.lower() != ".exr":
         Path(output).mkdir(parents=True, exist_ok=True)
-    read = dn.ReadOptions(profile=profile, mapping=mapping, part=part, spp=spp)
     write = dn.WriteOptions(half=half, compression=compression)
     skip_missing = method == "all"
     bar = tqdm(jobs, desc="denoise", unit="img", disable=len(jobs) < 2)

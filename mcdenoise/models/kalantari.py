@@ -77,10 +77,15 @@ def settings_class(kind: str) -> type[XbfSettings] | type[NlmSettings]:
     return XbfSettings if kind == "xbf" else NlmSettings
 
 
-def output_names(kind: str, guides: Sequence[str]) -> list[str]:
-    """Names of the predicted log-offsets, in channel order."""
+def output_names(kind: str, guides: Sequence[str], passes: int = 1) -> list[str]:
+    """Names of the predicted log-offsets, in channel order.
+
+    A two-pass cross-bilateral model (``passes = 2``) also predicts the second pass's spatial
+    and colour bandwidths (its colour distance is measured on the first pass's result).
+    """
     head = ["spatial", "color"] if kind == "xbf" else ["k"]
-    return head + [g for g in GUIDE_FEATURES if g in guides]
+    tail = ["spatial2", "color2"] if kind == "xbf" and passes == 2 else []
+    return head + [g for g in GUIDE_FEATURES if g in guides] + tail
 
 
 @dataclass
@@ -109,7 +114,7 @@ class ModelCard:
 
     @property
     def outputs(self) -> list[str]:
-        return output_names(self.kind, self.guides)
+        return output_names(self.kind, self.guides, int(self.settings.get("passes", 1)))
 
     def filter_settings(self) -> XbfSettings | NlmSettings:
         cls = settings_class(self.kind)
@@ -191,7 +196,7 @@ def filter_radius(s: XbfSettings | NlmSettings) -> int:
     """Pixels of context one filtered pixel depends on (window, patches, feature gradients)."""
     grad = 1 if s.feature_gradient else 0
     if isinstance(s, XbfSettings):
-        return s.kernel_size // 2 + grad
+        return s.passes * (s.kernel_size // 2) + grad
     return s.search_radius + s.patch_radius + grad
 
 
@@ -260,19 +265,32 @@ class KalantariModel(nn.Module):
         irr, var = batch["irr"], batch["irr_var"]
         if self.card.kind == "xbf":
             assert isinstance(s, XbfSettings)
+            common = {
+                "kernel_size": s.kernel_size,
+                "sigma_features": sig,
+                "color_var": var,
+                "var_pair": s.var_pair,
+                "feature_vars": fvars,
+                "feature_floor": floors,
+                "feature_gradient": s.feature_gradient,
+            }
             out = cross_bilateral(
                 irr,
                 feats or None,
-                kernel_size=s.kernel_size,
                 sigma_spatial=s.sigma_spatial * torch.exp(o[:, 0:1]),
                 sigma_color=s.sigma_color * torch.exp(o[:, 1:2]),
-                sigma_features=sig,
-                color_var=var,
-                var_pair=s.var_pair,  # type: ignore[arg-type]
-                feature_vars=fvars,
-                feature_floor=floors,
-                feature_gradient=s.feature_gradient,
+                **common,  # type: ignore[arg-type]
             )
+            if s.passes == 2:  # as denoise_xbf: colour distances on the first pass's result
+                n = len(self.card.outputs)
+                out = cross_bilateral(
+                    irr,
+                    feats or None,
+                    sigma_spatial=s.sigma_spatial * torch.exp(o[:, n - 2 : n - 1]),
+                    sigma_color=s.sigma_color_refine * torch.exp(o[:, n - 1 : n]),
+                    guide=out,
+                    **common,  # type: ignore[arg-type]
+                )
         else:
             assert isinstance(s, NlmSettings)
             out = non_local_means(
@@ -408,6 +426,8 @@ def new_model(
 ) -> KalantariModel:
     """An untrained model (= the fixed filter) for a guide set and feature statistics."""
     cls = settings_class(kind)
+    if kind == "xbf" and int(dict(settings or {}).get("passes", 1)) not in (1, 2):
+        raise InputError("a learned cross-bilateral filter has 1 or 2 passes")
     base = dataclasses.asdict(cls(**dict(settings or {})))
     base = {k: (list(v) if isinstance(v, tuple) else v) for k, v in base.items()}
     card = ModelCard(

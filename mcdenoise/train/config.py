@@ -60,6 +60,8 @@ class TrainConfig:
         hidden: hidden layer sizes of the model's MLP.
         kernel: filter window edge (odd; the cross-bilateral kernel or the NLM search window);
             0 = the filter's default (21).
+        passes: cross-bilateral passes (1 or 2; the second measures colour distances on the
+            first pass's result and has its own learned spatial and colour bandwidths).
         loss: ``relmse`` (mean over the batch's pixels) or ``log-relmse`` (mean over crops of
             ``log(relMSE of the crop)``: every crop counts alike whatever its error level, as
             in a geometric mean over images; plain relMSE is dominated by the noisiest crops).
@@ -89,7 +91,8 @@ class TrainConfig:
     threads: int = 0
     hidden: list[int] = field(default_factory=lambda: [32])
     kernel: int = 0
-    loss: str = "relmse"
+    passes: int = 1
+    loss: str = "log-relmse"
     guides: list[str] = field(default_factory=lambda: ["albedo", "normal", "depth", "position"])
     checkpoints_kept: int = 3
     device: str = "cpu"
@@ -115,6 +118,7 @@ class TrainConfig:
                 self.kernel == 0 or (self.kernel >= 3 and self.kernel % 2 == 1),
                 f"kernel must be 0 (default) or an odd size >= 3, got {self.kernel}",
             ),
+            (self.passes in (1, 2), f"passes must be 1 or 2, got {self.passes}"),
             (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}"),
         ]
         for ok, message in checks:

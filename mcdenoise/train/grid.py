@@ -36,6 +36,13 @@ GRIDS: dict[str, dict[str, list[Any]]] = {
         "k": [0.25, 0.45, 0.8, 1.4],
         "feature_scale": [0.5, 1.0, 2.0],
     },
+    # two-pass cross-bilateral (the baseline of a two-pass learned model)
+    "xbf2": {
+        "passes": [2],
+        "sigma_spatial": [4.0, 8.0],
+        "sigma_color": [2.0, 4.0],
+        "sigma_color_refine": [0.25, 0.5, 1.0],
+    },
 }
 
 
@@ -79,12 +86,13 @@ def grid_search(
     """Evaluate every grid point on every item; the best per spp level.
 
     Args:
-        kind: ``"xbf"`` or ``"nlm"``.
+        kind: ``"xbf"``, ``"nlm"`` or ``"xbf2"`` (two-pass cross-bilateral grid).
         items: prepared whole images (from :func:`~mcdenoise.train.dataset.load_items` with
             :func:`~mcdenoise.models.kalantari.prepare_item`), with ``reference``.
         grid: setting name -> values (default :data:`GRIDS`).
     """
     grid = {k: list(v) for k, v in (grid or GRIDS[kind]).items()}
+    kind = "xbf" if kind == "xbf2" else kind
     keys = list(grid)
     guides = [g for g in GUIDE_FEATURES if f"feat.{g}" in items[0].tensors]
     with_var = [g for g in guides if f"fvar.{g}" in items[0].tensors]

@@ -147,6 +147,10 @@ def build(
             ("kernel_size", cfg.kernel) if kind == "xbf" else ("search_radius", cfg.kernel // 2)
         )
         overrides[key] = value
+    if cfg.passes != 1:
+        if kind != "xbf":
+            raise InputError("passes applies to kalantari-xbf only")
+        overrides["passes"] = cfg.passes
     settings = settings_class(kind)(**overrides)
     guides = [g for g in GUIDE_FEATURES if g in cfg.guides]
     entries = scan_dataset(cfg.data, cfg.levels)

@@ -33,10 +33,15 @@ def small(samples_dir):
     return load_buffers(samples_dir / "materials_spp4.exr").crop(40, 40, 32, 32)
 
 
-@pytest.mark.parametrize(("kind", "fixed"), [("xbf", denoise_xbf), ("nlm", denoise_nlm)])
-def test_untrained_model_is_exactly_the_fixed_filter(small, kind, fixed) -> None:
-    m = _model(kind, small)
-    torch.testing.assert_close(m.denoise(small), fixed(small), atol=1e-5, rtol=1e-5)
+@pytest.mark.parametrize(
+    ("kind", "fixed", "settings"),
+    [("xbf", denoise_xbf, {}), ("xbf", denoise_xbf, {"passes": 2}), ("nlm", denoise_nlm, {})],
+)
+def test_untrained_model_is_exactly_the_fixed_filter(small, kind, fixed, settings) -> None:
+    m = _model(kind, small, settings=settings)
+    torch.testing.assert_close(m.denoise(small), fixed(small, **settings), atol=1e-5, rtol=1e-5)
+    if settings.get("passes") == 2:
+        assert m.card.outputs[-2:] == ["spatial2", "color2"] and m.radius == 20
 
 
 @pytest.mark.parametrize("kind", ["xbf", "nlm"])

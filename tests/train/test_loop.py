@@ -97,9 +97,7 @@ def test_run_folder_rules(tiny_dataset: Path, tmp_path: Path) -> None:
         train_kalantari(cfg(tiny_dataset, steps=6), out, resume=True, progress=False)
 
 
-def test_a_model_without_albedo_records_its_guides(
-    tiny_dataset: Path, tmp_path: Path
-) -> None:
+def test_a_model_without_albedo_records_its_guides(tiny_dataset: Path, tmp_path: Path) -> None:
     c = cfg(tiny_dataset, guides="normal,depth,position", steps=2, epoch_steps=2)
     result, _ = train_kalantari(c, tmp_path / "run", progress=False)
     assert result.steps == 2
