@@ -15,7 +15,12 @@ def test_shipped_models_load_and_denoise_a_sample(samples_dir, kind) -> None:
     path = shipped_model_path(f"kalantari-{kind}")
     assert path.is_file() and path.stat().st_size < 500_000
     model = load_kalantari(path)
-    assert model.card.kind == kind and model.card.guides == ["albedo", "normal", "depth", "position"]
+    assert model.card.kind == kind and model.card.guides == [
+        "albedo",
+        "normal",
+        "depth",
+        "position",
+    ]
     # trained on data disjoint from every reported evaluation (seed 1000 random scenes)
     assert all(name.startswith("random_s1000_") for name in model.card.training["train_images"])
     b = load_buffers(samples_dir / "cornell_spp16.exr")
