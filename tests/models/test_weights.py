@@ -29,10 +29,10 @@ def test_shipped_models_load_and_denoise_a_sample(samples_dir, kind) -> None:
     assert relmse(out, ref) < 0.2 * relmse(b["color"], ref)
 
 
-def test_auto_prefers_the_learned_nlm_and_falls_back_without_features(samples_dir) -> None:
+def test_auto_prefers_the_learned_filters_and_falls_back_without_features(samples_dir) -> None:
     from mcdenoise.registry import best_method
 
     b = load_buffers(samples_dir / "cornell_spp4.exr")
-    assert best_method(b).name == "kalantari-nlm"
+    assert best_method(b).name == "kalantari-xbf"
     colour_only = b.subset(["color", "color_var"])
     assert best_method(colour_only).name == "nlm"
