@@ -279,6 +279,8 @@ def test_interrupted_folder_run_leaves_only_complete_outputs(tmp_path):
     out = tmp_path / "out"
     code = f"""
 import sys, signal, os
+# a shell's background jobs start with SIGINT ignored; a terminal's Ctrl-C is what we mimic
+signal.signal(signal.SIGINT, signal.default_int_handler)
 import mcdenoise.denoise as dn
 real = dn.denoise
 count = [0]
