@@ -20,8 +20,8 @@ The default method (no ``--method``) is the available one with the highest prior
 required buffers the input has. The learned filters rank above the fixed ones because
 ``benchmarks/bench_kalantari.py`` measured them better at 4, 16 and 64 spp on held-out
 renders; kalantari-xbf ranks first (geometric-mean relMSE 14 % below kalantari-nlm at 4 spp,
-equal at 16, 2 % above at 64, and faster). Inputs without albedo,
-normal, depth or position fall back to nlm. OIDN is
+equal at 16, 2 % above at 64, and faster). kalantari-xbf serves inputs without albedo with
+its shipped no-albedo variant; inputs without normal, depth or position fall back to nlm. OIDN is
 deliberately never the default: mcdenoise's own methods are what it reports on, OIDN is the
 baseline they are compared with.
 """
@@ -37,7 +37,12 @@ from mcdenoise.baselines.oidn import oidn_denoise, unavailable_reason
 from mcdenoise.errors import InputError
 from mcdenoise.filters.prepare import NlmSettings, XbfSettings, denoise_nlm, denoise_xbf
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.models.weights import load_kalantari, shipped_model_path
+from mcdenoise.models.weights import (
+    NO_ALBEDO,
+    load_kalantari,
+    shipped_model_for,
+    shipped_model_path,
+)
 from mcdenoise.registry import Method, dataclass_defaults, register
 
 GUIDES = ("albedo", "normal", "depth", "position")
@@ -92,9 +97,8 @@ register(
 def _run_kalantari(kind: str):
     def run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
         name = str(params["model"])
-        model = load_kalantari(
-            shipped_model_path(f"kalantari-{kind}") if name in ("", SHIPPED) else name
-        )
+        shipped = shipped_model_for(f"kalantari-{kind}", set(b.buffers))
+        model = load_kalantari(shipped if name in ("", SHIPPED) else name)
         if model.card.kind != kind:
             raise InputError(
                 f"{params['model']}: is a kalantari-{model.card.kind} model, not kalantari-{kind}"
@@ -105,12 +109,16 @@ def _run_kalantari(kind: str):
 
 
 for _kind, _what in (("xbf", "cross-bilateral bandwidths"), ("nlm", "NLM k and feature k_f")):
+    # With a shipped no-albedo variant, inputs without albedo (AO renders) are served too.
+    _needs = GUIDES
+    if shipped_model_path(f"kalantari-{_kind}", NO_ALBEDO).is_file():
+        _needs = tuple(g for g in GUIDES if g != "albedo")
     register(
         Method(
             name=f"kalantari-{_kind}",
             summary=f"{_what} predicted per pixel by an MLP (Kalantari 2015); -p model=RUN",
-            requires=("color", *GUIDES),
-            uses=("color_var", *GUIDE_VARS),
+            requires=("color", *_needs),
+            uses=("color_var", *GUIDES, *GUIDE_VARS),
             defaults={"model": SHIPPED},
             run=_run_kalantari(_kind),
             priority=25 if _kind == "nlm" else 30,

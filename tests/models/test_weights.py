@@ -36,3 +36,25 @@ def test_auto_prefers_the_learned_filters_and_falls_back_without_features(sample
     assert best_method(b).name == "kalantari-xbf"
     colour_only = b.subset(["color", "color_var"])
     assert best_method(colour_only).name == "nlm"
+
+
+def test_inputs_without_albedo_use_the_shipped_no_albedo_variant(samples_dir) -> None:
+    from mcdenoise.models.weights import NO_ALBEDO
+    from mcdenoise.registry import best_method
+
+    variant = shipped_model_path("kalantari-xbf", NO_ALBEDO)
+    assert variant.is_file()
+    assert load_kalantari(variant).card.guides == ["normal", "depth", "position"]
+    b = load_buffers(samples_dir / "cornell_spp16.exr")
+    no_albedo = b.subset([n for n in b.buffers if not n.startswith("albedo")])
+    assert best_method(no_albedo).name == "kalantari-xbf"
+    ref = load_buffers(samples_dir / "ref" / "cornell.exr")["color"]
+    out = denoise(no_albedo, "kalantari-xbf").image
+    assert relmse(out, ref) < 0.2 * relmse(b["color"], ref)
+    # the NLM model has no such variant: it still refuses by name
+    import pytest as _pytest
+
+    from mcdenoise.io.buffers import MissingFeatureError
+
+    with _pytest.raises(MissingFeatureError, match="albedo"):
+        denoise(no_albedo, "kalantari-nlm")

@@ -18,9 +18,23 @@ from mcdenoise.train.checkpoint import CheckpointError
 WEIGHTS = Path(__file__).resolve().parent
 
 
-def shipped_model_path(name: str) -> Path:
-    """Path of the shipped weights of model ``name`` (e.g. ``kalantari-xbf``)."""
-    return WEIGHTS / f"{name}.pt"
+#: Suffix of the shipped variant trained without albedo (for AO renders and other inputs
+#: that have no albedo buffer).
+NO_ALBEDO = "noalbedo"
+
+
+def shipped_model_path(name: str, variant: str = "") -> Path:
+    """Path of the shipped weights of model ``name`` (e.g. ``kalantari-xbf``), or of a variant."""
+    return WEIGHTS / (f"{name}-{variant}.pt" if variant else f"{name}.pt")
+
+
+def shipped_model_for(name: str, buffers_present: set[str]) -> Path:
+    """The shipped weights of ``name`` for an input holding ``buffers_present``: the main
+    model, or the no-albedo variant when the input has no albedo and that variant exists."""
+    variant = shipped_model_path(name, NO_ALBEDO)
+    if "albedo" not in buffers_present and variant.is_file():
+        return variant
+    return shipped_model_path(name)
 
 
 @functools.lru_cache(maxsize=8)
