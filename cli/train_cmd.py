@@ -50,17 +50,12 @@ def train(model, data, out, config_file, overrides, steps, resume, quiet):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
     from pathlib import Path
 
-    from mcdenoise.errors import InputError
+    from mcdenoise.registry import params_from_strings
     from mcdenoise.train.checkpoint import RunFolder
     from mcdenoise.train.config import load_config
     from mcdenoise.train.kalantari import train_kalantari
 
-    values: dict[str, str] = {}
-    for item in overrides:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"--set expects KEY=VALUE, got {item!r}")
-        values[key.strip()] = value.strip()
+    values = params_from_strings(overrides, option="--set")
     if model is not None:
         values["model"] = model
     if data is not None:

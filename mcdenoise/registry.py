@@ -123,13 +123,13 @@ def best_method(buffers: FeatureBuffers | None = None) -> Method:
     raise InputError("no denoising method can run on this input")
 
 
-def params_from_strings(items: Iterable[str]) -> dict[str, str]:
-    """Parse ``key=value`` strings (from ``--param``) into a dict."""
+def params_from_strings(items: Iterable[str], option: str = "--param") -> dict[str, str]:
+    """Parse ``key=value`` strings (from ``option``, e.g. ``--param``) into a dict."""
     out: dict[str, str] = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise InputError(f"--param expects key=value, got {item!r}")
+            raise InputError(f"{option} expects key=value, got {item!r}")
         out[key.strip()] = value.strip()
     return out
 

@@ -95,6 +95,32 @@ def _ylim(ax: Any, ys: Sequence[float], floor: float | None) -> None:
         ax.set_ylim(min(vals) / 1.6, max(vals) * 1.6)
 
 
+def _plot_series(
+    ax: Any,
+    series: Mapping[str, tuple[Sequence[float], Sequence[float]]],
+    st: Mapping[str, Mapping[str, Any]],
+    *,
+    linewidth: float,
+) -> tuple[list[float], list[float]]:
+    """One line per label through its points with ``x > 0`` and finite ``y > 0`` (log axes);
+    returns every plotted x and y."""
+    all_x: list[float] = []
+    ys: list[float] = []
+    for label, (x, y) in series.items():
+        pts = [
+            (a, b)
+            for a, b in zip(x, y)
+            if a is not None and b is not None and a > 0 and math.isfinite(b) and b > 0
+        ]
+        if not pts:
+            continue
+        xs, vs = zip(*pts)
+        all_x.extend(xs)
+        ys.extend(vs)
+        ax.plot(xs, vs, label=label, markersize=4, linewidth=linewidth, **st[label])
+    return all_x, ys
+
+
 def plot_error_vs_spp(
     path: str | os.PathLike[str],
     series: Mapping[str, tuple[Sequence[float], Sequence[float]]],
@@ -116,16 +142,7 @@ def plot_error_vs_spp(
     """
     fig, ax = _figure()
     st = styles(list(series))
-    ys: list[float] = []
-    all_x: list[float] = []
-    for label, (x, y) in series.items():
-        pts = [(a, b) for a, b in zip(x, y) if b is not None and math.isfinite(b) and b > 0]
-        if not pts:
-            continue
-        xs, vs = zip(*pts)
-        ys.extend(vs)
-        all_x.extend(xs)
-        ax.plot(xs, vs, label=label, markersize=4, linewidth=1.3, **st[label])
+    all_x, ys = _plot_series(ax, series, st, linewidth=1.3)
     if one_over_n is not None and all_x:
         lo, hi = min(all_x), max(all_x)
         ax.plot(
@@ -167,18 +184,7 @@ def plot_error_vs_time(
     """
     fig, ax = _figure()
     st = styles(list(series))
-    ys: list[float] = []
-    for label, (x, y) in series.items():
-        pts = [
-            (a, b)
-            for a, b in zip(x, y)
-            if a is not None and b is not None and a > 0 and math.isfinite(b) and b > 0
-        ]
-        if not pts:
-            continue
-        xs, vs = zip(*pts)
-        ys.extend(vs)
-        ax.plot(xs, vs, label=label, markersize=4, linewidth=1.2, **st[label])
+    _, ys = _plot_series(ax, series, st, linewidth=1.2)
     if front:
         fx = [p[0] for p in front]
         fy = [p[1] for p in front]
@@ -222,14 +228,7 @@ def plot_speedup(
     """
     fig, ax = _figure()
     st = styles(["noisy", *series])
-    ys: list[float] = []
-    for label, (x, y) in series.items():
-        pts = [(a, b) for a, b in zip(x, y) if b is not None and math.isfinite(b) and b > 0]
-        if not pts:
-            continue
-        xs, vs = zip(*pts)
-        ys.extend(vs)
-        ax.plot(xs, vs, label=label, markersize=4, linewidth=1.3, **st[label])
+    _, ys = _plot_series(ax, series, st, linewidth=1.3)
     ax.axhline(1.0, color="black", linewidth=1, linestyle="--", label="plain rendering")
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")

@@ -79,7 +79,7 @@ class FilterInputs:
     repaired: dict[str, int] = field(default_factory=dict)
 
 
-def _box(x: Tensor, r: int) -> Tensor:
+def box_mean(x: Tensor, r: int) -> Tensor:
     """Mean over the in-image part of a ``(2r+1)²`` window, ``(B, C, H, W)``."""
     k = 2 * r + 1
     ones = torch.ones_like(x[:, :1])
@@ -137,7 +137,7 @@ def estimate_variance(color: Tensor, *, bins: int = 16, firefly_sigmas: float = 
     detail = (x[..., :-1, :-1] - x[..., :-1, 1:] - x[..., 1:, :-1] + x[..., 1:, 1:]) * 0.5
     mag = detail.abs().mean(dim=1, keepdim=True)  # (B,1,H,W)
     lum = color.mean(dim=1, keepdim=True)
-    smooth = _box(lum, 2)
+    smooth = box_mean(lum, 2)
     nlf = torch.empty_like(mag)
     for i in range(b):
         li, mi = smooth[i].flatten(), mag[i].flatten()
@@ -341,11 +341,15 @@ class NlmSettings:
     features: tuple[str, ...] = GUIDE_FEATURES
 
 
-def _feature_args(
-    inp: FilterInputs, s: XbfSettings | NlmSettings, use_gradient: bool
-) -> tuple[dict[str, float], dict[str, Tensor | None], dict[str, float]]:
-    """Per-feature (bandwidth, variance, floor): the distance is ``Δ² / σ_k²`` where the
-    feature is clean, and ``Δ² / var`` where its variance (or gradient) exceeds ``σ_k²``."""
+def feature_bandwidths(
+    s: XbfSettings | NlmSettings, guides: Sequence[str], with_var: Sequence[str]
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Per-guide (bandwidth, normaliser floor) of the fixed filters.
+
+    The distance is ``Δ² / σ_k²`` where the feature is clean, and ``Δ² / var`` where its
+    variance (or, with ``feature_gradient``, its squared gradient) exceeds the floor ``σ_k²``;
+    a normalised distance then gets the bandwidth ``feature_scale``.
+    """
     raw = {
         "albedo": s.sigma_albedo,
         "normal": s.sigma_normal,
@@ -353,14 +357,20 @@ def _feature_args(
         "position": s.sigma_position,
     }
     sig: dict[str, float] = {}
-    fvars: dict[str, Tensor | None] = {}
     floors: dict[str, float] = {}
-    for name in inp.features:
-        var = inp.feature_vars.get(name)
+    for name in guides:
         floors[name] = raw[name] ** 2
-        fvars[name] = var
-        normalised = var is not None or use_gradient
+        normalised = name in with_var or s.feature_gradient
         sig[name] = s.feature_scale if normalised else s.feature_scale * raw[name]
+    return sig, floors
+
+
+def _feature_args(
+    inp: FilterInputs, s: XbfSettings | NlmSettings
+) -> tuple[dict[str, float], dict[str, Tensor | None], dict[str, float]]:
+    """(bandwidth, variance, floor) per guide feature of ``inp`` (see :func:`feature_bandwidths`)."""
+    sig, floors = feature_bandwidths(s, list(inp.features), list(inp.feature_vars))
+    fvars: dict[str, Tensor | None] = {n: inp.feature_vars.get(n) for n in inp.features}
     return sig, fvars, floors
 
 
@@ -387,7 +397,7 @@ def denoise_xbf(buffers: FeatureBuffers, **overrides: object) -> Tensor:
         raise InputError(f"passes must be >= 1, got {s.passes}")
     inp = prepare_inputs(buffers, features=s.features, prefilter=s.prefilter)
     irr, var, factor = _demodulate(inp, s.demodulate, s.albedo_eps)
-    sig, fvars, floors = _feature_args(inp, s, s.feature_gradient)
+    sig, fvars, floors = _feature_args(inp, s)
     common = {
         "kernel_size": s.kernel_size,
         "sigma_spatial": s.sigma_spatial,
@@ -426,7 +436,7 @@ def denoise_nlm(buffers: FeatureBuffers, **overrides: object) -> Tensor:
     s: NlmSettings = _apply_overrides(NlmSettings(), overrides)  # type: ignore[assignment]
     inp = prepare_inputs(buffers, features=s.features, prefilter=s.prefilter)
     irr, var, factor = _demodulate(inp, s.demodulate, s.albedo_eps)
-    sig, fvars, floors = _feature_args(inp, s, s.feature_gradient)
+    sig, fvars, floors = _feature_args(inp, s)
     with torch.no_grad():
         out = non_local_means(
             irr,

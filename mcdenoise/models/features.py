@@ -50,7 +50,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from mcdenoise.errors import InputError
-from mcdenoise.filters.prepare import GUIDE_FEATURES, FilterInputs
+from mcdenoise.filters.prepare import GUIDE_FEATURES, FilterInputs, box_mean
 
 #: Window edges of the local statistics.
 WINDOWS: tuple[int, ...] = (3, 7, 21)
@@ -116,19 +116,10 @@ def _group(names: Sequence[str]) -> list[str]:
     return out
 
 
-def _box_mean(x: Tensor, w: int) -> Tensor:
-    """Mean over the in-image part of a ``w × w`` window, ``(B, C, H, W)``."""
-    r = w // 2
-    pad = (r, r, r, r)
-    num = F.avg_pool2d(F.pad(x, pad), w, stride=1, divisor_override=1)
-    den = F.avg_pool2d(F.pad(torch.ones_like(x[:, :1]), pad), w, stride=1, divisor_override=1)
-    return num / den
-
-
 def _local_std(x: Tensor, w: int) -> Tensor:
     """Channel-mean local standard deviation ``(B, 1, H, W)`` over ``w × w``."""
-    m = _box_mean(x, w)
-    v = (_box_mean(x * x, w) - m * m).clamp_min(0)
+    m = box_mean(x, w // 2)
+    v = (box_mean(x * x, w // 2) - m * m).clamp_min(0)
     return v.mean(1, keepdim=True).sqrt()
 
 
@@ -142,7 +133,7 @@ def _grad(x: Tensor) -> Tensor:
 
 def _mad3(x: Tensor) -> Tensor:
     """Mean absolute deviation from the 3×3 mean, ``(B, 1, H, W)``."""
-    m = _box_mean(x, 3)
+    m = box_mean(x, 1)
     h, w = x.shape[-2:]
     p = F.pad(x, (1, 1, 1, 1), mode="replicate")
     dev = [(p[..., dy : dy + h, dx : dx + w] - m).abs() for dy in range(3) for dx in range(3)]
@@ -180,7 +171,7 @@ def compute_features(
     guides = [g for g in GUIDE_FEATURES if g in inp.features]
     chans: list[Tensor] = [sx[None, None], sy[None, None], color]
     chans += [inp.features[g] for g in guides]
-    chans += [_box_mean(lum, k) for k in WINDOWS] + [_local_std(lum, k) for k in WINDOWS]
+    chans += [box_mean(lum, k // 2) for k in WINDOWS] + [_local_std(lum, k) for k in WINDOWS]
     for g in guides:
         chans += [_local_std(inp.features[g], k) for k in WINDOWS]
     chans += [_grad(lum)] + [_grad(inp.features[g]) for g in guides]

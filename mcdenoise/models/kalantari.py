@@ -53,6 +53,7 @@ from mcdenoise.filters.prepare import (
     NlmSettings,
     XbfSettings,
     _demodulate,
+    feature_bandwidths,
     prepare_inputs,
 )
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
@@ -174,24 +175,6 @@ class KalantariNet(nn.Module):
         return self.bound * torch.tanh(raw / self.bound)
 
 
-def _base_sigmas(
-    s: XbfSettings | NlmSettings, guides: Sequence[str], with_var: Sequence[str]
-) -> tuple[dict[str, float], dict[str, float]]:
-    """The fixed filter's per-feature bandwidths and normaliser floors (as ``_feature_args``)."""
-    raw = {
-        "albedo": s.sigma_albedo,
-        "normal": s.sigma_normal,
-        "depth": s.sigma_depth,
-        "position": s.sigma_position,
-    }
-    sig, floors = {}, {}
-    for g in guides:
-        floors[g] = raw[g] ** 2
-        normalised = g in with_var or s.feature_gradient
-        sig[g] = s.feature_scale if normalised else s.feature_scale * raw[g]
-    return sig, floors
-
-
 def filter_radius(s: XbfSettings | NlmSettings) -> int:
     """Pixels of context one filtered pixel depends on (window, patches, feature gradients)."""
     grad = 1 if s.feature_gradient else 0
@@ -257,7 +240,7 @@ class KalantariModel(nn.Module):
         s = self.settings
         guides = self.card.guides
         with_var = [g for g in guides if f"fvar.{g}" in batch]
-        base, floors = _base_sigmas(s, guides, with_var)
+        base, floors = feature_bandwidths(s, guides, with_var)
         feats = {g: batch[f"feat.{g}"] for g in guides}
         fvars = {g: batch.get(f"fvar.{g}") for g in guides}
         head = 2 if self.card.kind == "xbf" else 1

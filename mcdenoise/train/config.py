@@ -156,18 +156,13 @@ def _coerce(name: str, value: Any, kind: Any) -> Any:
             if not isinstance(value, str):
                 raise ValueError
             return value
-        if kind == list[int]:
+        if kind in (list[int], list[str]):
             if text:
                 value = [v for v in value.replace(" ", "").split(",") if v]
             if not isinstance(value, list):
                 raise ValueError
-            return [_coerce(name, v, int) for v in value]
-        if kind == list[str]:
-            if text:
-                value = [v for v in value.replace(" ", "").split(",") if v]
-            if not isinstance(value, list):
-                raise ValueError
-            return [_coerce(name, v, str) for v in value]
+            item = int if kind == list[int] else str
+            return [_coerce(name, v, item) for v in value]
     except (TypeError, ValueError):
         pass
     raise InputError(f"config key {name!r}: cannot use {value!r} (expected {_type_name(kind)})")

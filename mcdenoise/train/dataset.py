@@ -39,12 +39,10 @@ from torch import Tensor
 from tqdm import tqdm
 
 from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.eval.metrics import RELMSE_EPS
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.exr import probe_exr
-
-#: ε of relMSE (DESIGN.md), also used for the importance map.
-RELMSE_EPS = 1e-2
 
 #: Key of the reference colour in a prepared item.
 REFERENCE = "reference"

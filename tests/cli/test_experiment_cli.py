@@ -10,29 +10,10 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
+from scene_specs import BALL_SCENE
 
 from mcdenoise import registry
 from mcdenoise.registry import Method
-
-SCENE = """
-name = "{name}"
-effects = ["direct"]
-[camera]
-origin = [0, 1, 4]
-target = [0, 0.5, 0]
-[[objects]]
-shape = "rectangle"
-transform = {{ rotate = [-90, 0, 0], scale = [3, 3, 1] }}
-[[objects]]
-shape = "sphere"
-center = [0, 0.5, 0]
-radius = 0.5
-material = {{ type = "diffuse", reflectance = [0.7, 0.3, 0.2] }}
-[[lights]]
-type = "point"
-position = [1, 3, 2]
-intensity = [20, 20, 20]
-"""
 
 EXPERIMENT = """
 name = "cli"
@@ -65,7 +46,7 @@ def one_line_error(result, code: int = 1) -> str:
 @pytest.fixture(scope="module")
 def experiment(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cli")
-    (tmp / "ball.toml").write_text(SCENE.format(name="ball"), encoding="utf-8")
+    (tmp / "ball.toml").write_text(BALL_SCENE.format(name="ball"), encoding="utf-8")
     spec = tmp / "cli.toml"
     spec.write_text(EXPERIMENT, encoding="utf-8")
     out = tmp / "out"

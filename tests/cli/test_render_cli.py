@@ -12,28 +12,10 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
+from scene_specs import BALL_SCENE
 
 from mcdenoise.io import load_buffers
 
-SPEC = """
-name = "{name}"
-effects = ["direct"]
-[camera]
-origin = [0, 1, 4]
-target = [0, 0.5, 0]
-[[objects]]
-shape = "rectangle"
-transform = {{ rotate = [-90, 0, 0], scale = [3, 3, 1] }}
-[[objects]]
-shape = "sphere"
-center = [0, 0.5, 0]
-radius = 0.5
-material = {{ type = "diffuse", reflectance = [0.7, 0.3, 0.2] }}
-[[lights]]
-type = "point"
-position = [1, 3, 2]
-intensity = [20, 20, 20]
-"""
 TINY = ("--res", "16", "--spp", "1,4", "--ref-spp", "8", "--variant", "scalar_rgb")
 
 
@@ -49,7 +31,7 @@ def one_line_error(result) -> str:
     return err
 
 
-def spec(folder: Path, name: str = "ball", text: str = SPEC) -> Path:
+def spec(folder: Path, name: str = "ball", text: str = BALL_SCENE) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.toml"
     path.write_text(text.format(name=name), encoding="utf-8")
@@ -118,7 +100,7 @@ def test_bad_options_give_one_line(tmp_path: Path, args, needle) -> None:
 
 
 def test_bad_spec_names_file_and_key(tmp_path: Path) -> None:
-    bad = spec(tmp_path, "bad", SPEC.replace('"direct"', '"direct", "sparkles"'))
+    bad = spec(tmp_path, "bad", BALL_SCENE.replace('"direct"', '"direct", "sparkles"'))
     msg = one_line_error(run("render", str(bad), "-o", str(tmp_path / "o")))
     assert "bad.toml" in msg and "effects" in msg and "sparkles" in msg
 
