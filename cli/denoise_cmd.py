@@ -81,7 +81,9 @@ def denoise(
     from pathlib import Path
 
     from mcdenoise import denoise as dn
+    from mcdenoise.io import load_buffers
     from mcdenoise.io.buffers import MissingFeatureError
+    from mcdenoise.registry import best_method
 
     files = dn.collect_inputs(inputs)
     if model is not None and method == "auto":
@@ -108,16 +110,10 @@ def denoise(
             "--param needs an explicit --method (the default depends on the input)"
         )
     read = dn.ReadOptions(profile=profile, mapping=mapping, part=part, spp=spp)
-    jobs = []
-    if method == "auto":  # the best method each input has the buffers for
-        from mcdenoise.io import load_buffers
-        from mcdenoise.registry import best_method
-
+    jobs: list = []
+    if method == "auto":  # decided per input, when it is read: the best method it can feed
         dn.plan_outputs(files, output, "auto", part=part)  # refuses -o x.exr for several inputs
-        for src in files:
-            b = load_buffers(src, profile=profile, mapping=mapping, part=part, spp=spp)
-            m = best_method(b)
-            jobs.append((src, dn.plan_outputs([src], output, m.name, part=part)[0], m))
+        jobs = [(src, None, None) for src in files]
     else:
         for m in chosen:
             outs = dn.plan_outputs(files, output, m.name, part=part)
@@ -128,10 +124,22 @@ def denoise(
     skip_missing = method == "all"
     bar = tqdm(jobs, desc="denoise", unit="img", disable=len(jobs) < 2)
     for src, dst, m in bar:
+        buffers = None
+        if m is None:
+            buffers = load_buffers(src, profile=profile, mapping=mapping, part=part, spp=spp)
+            m = best_method(buffers)
+            dst = dn.plan_outputs([src], output, m.name, part=part)[0]
         bar.set_postfix_str(f"{src.name} {m.name}")
         try:
             res = dn.denoise_file(
-                src, dst, m, params=overrides, device=device, read=read, write=write
+                src,
+                dst,
+                m,
+                params=overrides,
+                device=device,
+                read=read,
+                write=write,
+                buffers=buffers,
             )
         except MissingFeatureError as err:
             if not skip_missing:

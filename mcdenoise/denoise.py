@@ -204,12 +204,14 @@ def denoise_file(
     device: str | torch.device = "auto",
     read: ReadOptions | None = None,
     write: WriteOptions | None = None,
+    buffers: FeatureBuffers | None = None,
 ) -> FileResult:
     """Read ``input_path``, denoise it, write ``output_path`` atomically (colour only).
 
     The output keeps the input's data and display windows and records, as header attributes,
     the method, its parameters, the source file, the seconds the method took, the device and
-    the sample count of the input.
+    the sample count of the input. ``buffers``: the input already read with ``read`` (it is
+    then not read again).
     """
     from mcdenoise.io import load_buffers, save_buffers
 
@@ -217,9 +219,10 @@ def denoise_file(
     write = write or WriteOptions()
     src, dst = Path(input_path), Path(output_path)
     _check_output_path(src, dst)
-    buffers = load_buffers(
-        src, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
-    )
+    if buffers is None:
+        buffers = load_buffers(
+            src, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
+        )
     result = denoise(buffers, method, params=params, device=device)
     out = FeatureBuffers(
         {"color": result.image},
