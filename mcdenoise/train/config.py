@@ -25,8 +25,12 @@ from typing import Any, get_type_hints
 
 from mcdenoise.errors import InputError
 
-#: Training losses a config may name.
-LOSSES = ("relmse", "log-relmse")
+#: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`).
+LOSSES = ("relmse", "log-relmse", "smape", "l1", "asymmetric")
+#: Default loss per model family (prefix of the model name).
+DEFAULT_LOSS = {"kalantari": "log-relmse", "kpcn": "smape"}
+#: Mixed-precision modes (``amp``); autocast is only used on CUDA devices.
+AMP_MODES = ("off", "bf16", "fp16")
 
 
 @dataclass
@@ -34,7 +38,7 @@ class TrainConfig:
     """Everything a training run needs.
 
     Attributes:
-        model: model name (``kalantari-xbf``, ``kalantari-nlm``).
+        model: model name (``kalantari-xbf``, ``kalantari-nlm``, ``kpcn``).
         data: folder of a data set made by ``mcdenoise render`` (``<id>.exr`` with parts
             ``spp<n>`` and ``ref/<id>.exr``).
         levels: spp levels (parts) to train on; empty = every level in the files.
@@ -62,9 +66,28 @@ class TrainConfig:
             0 = the filter's default (21).
         passes: cross-bilateral passes (1 or 2; the second measures colour distances on the
             first pass's result and has its own learned spatial and colour bandwidths).
-        loss: ``relmse`` (mean over the batch's pixels) or ``log-relmse`` (mean over crops of
+        loss: ``relmse`` (mean over the batch's pixels), ``log-relmse`` (mean over crops of
             ``log(relMSE of the crop)``: every crop counts alike whatever its error level, as
-            in a geometric mean over images; plain relMSE is dominated by the noisiest crops).
+            in a geometric mean over images; plain relMSE is dominated by the noisiest crops),
+            ``smape``, ``l1`` or ``asymmetric`` (Vogels 2018, slope ``asym_slope`` on SMAPE);
+            see :mod:`mcdenoise.losses`. Empty: the model's default (Kalantari: log-relmse,
+            KPCN: smape); the resolved config holds the value used.
+        asym_slope: λ of the asymmetric loss (1 = plain SMAPE; > 1 penalises results on the
+            far side of the reference from the noisy input, keeping more detail).
+        channels: KPCN U-Net widths per level (full, 1/2, 1/4, ...; at least 2 levels).
+        scales: KPCN kernel scales (1 = full resolution only; 3 = full, 1/2, 1/4 with the
+            learned scale compositor).
+        encoder: KPCN input module: ``source-aware`` (one small encoder per input source in
+            front of the shared trunk, Vogels 2018) or ``shared`` (one input layer on the union
+            of the buffers, missing ones zero-filled: the ablation).
+        sources: KPCN input sources trained (``full``, ``basic``); each training crop is shown
+            to the network as one of them, chosen at random.
+        augment: random flips, 90° rotations and colour-channel permutations of the crops.
+        amp: mixed precision on CUDA (``off``, ``bf16``, ``fp16``): the convolutions run in
+            the low precision, the kernel softmax, kernel application and loss in float32.
+        finetune_encoder: train only the encoder of this source against a frozen trunk
+            (Vogels 2018); needs ``base``.
+        base: run folder or model file to start from (``finetune_encoder``).
         guides: guide features the model uses (and will require at inference); images of
             the data set without one of them are skipped and reported.
         checkpoints_kept: how many checkpoints to keep in ``checkpoints/`` (the newest ones).
@@ -92,12 +115,24 @@ class TrainConfig:
     hidden: list[int] = field(default_factory=lambda: [32])
     kernel: int = 0
     passes: int = 1
-    loss: str = "log-relmse"
+    loss: str = ""
+    asym_slope: float = 2.0
+    channels: list[int] = field(default_factory=lambda: [24, 32, 48, 64])
+    scales: int = 3
+    encoder: str = "source-aware"
+    sources: list[str] = field(default_factory=lambda: ["full", "basic"])
+    augment: bool = True
+    amp: str = "off"
+    finetune_encoder: str = ""
+    base: str = ""
     guides: list[str] = field(default_factory=lambda: ["albedo", "normal", "depth", "position"])
     checkpoints_kept: int = 3
     device: str = "cpu"
 
     def __post_init__(self) -> None:
+        if not self.loss:
+            family = self.model.split("-")[0]
+            self.loss = DEFAULT_LOSS.get(family, "log-relmse")
         checks = [
             (self.patch >= 8, f"patch must be >= 8, got {self.patch}"),
             (self.margin >= 0, f"margin must be >= 0, got {self.margin}"),
@@ -120,6 +155,21 @@ class TrainConfig:
             ),
             (self.passes in (1, 2), f"passes must be 1 or 2, got {self.passes}"),
             (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}"),
+            (self.asym_slope >= 1, f"asym_slope must be >= 1, got {self.asym_slope}"),
+            (
+                len(self.channels) >= 2 and all(c >= 1 for c in self.channels),
+                f"channels needs >= 2 levels of >= 1 channel, got {self.channels}",
+            ),
+            (1 <= self.scales <= len(self.channels), "scales must be in [1, len(channels)]"),
+            (
+                self.encoder in ("source-aware", "shared"),
+                f"encoder must be source-aware or shared, got {self.encoder!r}",
+            ),
+            (self.amp in AMP_MODES, f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}"),
+            (
+                not self.finetune_encoder or bool(self.base),
+                "finetune_encoder needs base (the run folder whose trunk is kept)",
+            ),
         ]
         for ok, message in checks:
             if not ok:

@@ -83,7 +83,8 @@ def setup_torch(cfg: TrainConfig) -> None:
 def _check_resume_config(run: RunFolder, cfg: TrainConfig) -> None:
     old = run.read_config()
     new = cfg.to_dict()
-    diff = sorted(k for k in new if k not in RESUME_FREE and old.get(k) != new[k])
+    # a key missing from an older run's config did not exist then: its default applied
+    diff = sorted(k for k in new if k not in RESUME_FREE and old.get(k, new[k]) != new[k])
     if diff:
         parts = ", ".join(f"{k}: {old.get(k)!r} -> {new[k]!r}" for k in diff)
         raise InputError(f"{run.path}: cannot resume with a different config ({parts})")
