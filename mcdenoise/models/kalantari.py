@@ -293,6 +293,10 @@ class KalantariModel(nn.Module):
             )
         return (out * batch["factor"]).clamp_min(0.0)
 
+    def forward(self, batch: Mapping[str, Tensor], offsets: Tensor | None = None) -> Tensor:
+        """:meth:`filter` (so a training loop can call the module, e.g. through DDP)."""
+        return self.filter(batch, offsets)
+
     @torch.no_grad()
     def denoise(self, buffers: FeatureBuffers, *, chunk_rows: int = 256) -> Tensor:
         """Denoise one image; returns ``(3, H, W)`` float32 linear HDR colour."""

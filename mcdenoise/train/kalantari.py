@@ -61,6 +61,10 @@ def _batch(item: Item) -> dict[str, Tensor]:
 class KalantariTask:
     """A :class:`~mcdenoise.train.loop.Task` for a Kalantari model.
 
+    The training forward goes through ``forward_module`` (the model, or its DDP wrapper
+    under torchrun); validation uses the bare model on ``device`` (both set by
+    :func:`~mcdenoise.train.loop.train`).
+
     Args:
         model: the model to train (its card's ``training`` field is filled on export).
         val_items: prepared validation levels (whole images).
@@ -76,6 +80,10 @@ class KalantariTask:
     ) -> None:
         self.loss_name = loss
         self.module = model
+        self.forward_module: torch.nn.Module = model
+        self.device = torch.device("cpu")
+        #: every MLP weight is used in every step: DDP need not search for unused ones
+        self.find_unused_parameters = False
         self.model = model
         self.val_items = list(val_items)
         self.description = description
@@ -83,7 +91,7 @@ class KalantariTask:
         self.last_val: dict[str, float] = {}
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
-        out = self.model.filter(batch)
+        out = self.forward_module(batch)
         if self.loss_name == "log-relmse":
             return crop_log_relmse(out, batch["reference"], batch["mask"])
         return masked_relmse(out, batch["reference"], batch["mask"])
@@ -91,11 +99,12 @@ class KalantariTask:
     def _errors(self, fixed: bool) -> list[float]:
         errs = []
         for it in self.val_items:
-            b = _batch(it)
+            b = {k: v.to(self.device) for k, v in _batch(it).items()}
             off = None
             if fixed:
-                off = torch.zeros((1, len(self.model.card.outputs), *it.size), dtype=b["irr"].dtype)
-            errs.append(image_relmse(self.model.filter(b, off)[0], it.tensors["reference"]))
+                shape = (1, len(self.model.card.outputs), *it.size)
+                off = torch.zeros(shape, dtype=b["irr"].dtype, device=self.device)
+            errs.append(image_relmse(self.model.filter(b, off)[0], b["reference"][0]))
         return errs
 
     def validate(self) -> dict[str, float]:
