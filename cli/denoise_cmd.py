@@ -87,16 +87,16 @@ def denoise(
 
     files = dn.collect_inputs(inputs)
     if model is not None and method == "auto":
-        from mcdenoise.models.weights import load_kalantari
+        from mcdenoise.models.weights import model_method
 
-        method = f"kalantari-{load_kalantari(model).card.kind}"  # the model says which method
+        method = model_method(model)  # the model file says which method
     chosen = dn.parse_methods(method)
     overrides = dn.params_from_strings(params)
     if model is not None:
         learned = [m.name for m in chosen if "model" in m.defaults]
         if len(chosen) != 1 or not learned:
             raise click.UsageError(
-                "--model needs exactly one learned --method (e.g. --method kalantari-xbf)"
+                "--model needs exactly one learned --method (e.g. --method kpcn)"
             )
         overrides["model"] = model
     if overrides and len(chosen) != 1:

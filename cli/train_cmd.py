@@ -11,7 +11,7 @@ import click
     "model",
     default=None,
     metavar="NAME",
-    help="Model to train: kalantari-xbf or kalantari-nlm (default: the config file's, "
+    help="Model to train: kpcn, kalantari-xbf or kalantari-nlm (default: the config file's, "
     "else kalantari-xbf).",
 )
 @click.option(
@@ -45,8 +45,23 @@ import click
 @click.option(
     "--resume", is_flag=True, help="Continue the run in --out from its latest checkpoint."
 )
+@click.option(
+    "--finetune-encoder",
+    "finetune_encoder",
+    default=None,
+    metavar="SOURCE",
+    help="kpcn: train only a new encoder for SOURCE (full, basic, color) against the frozen "
+    "trunk of --from (Vogels 2018).",
+)
+@click.option(
+    "--from",
+    "base",
+    default=None,
+    metavar="RUN",
+    help="kpcn: run folder or model file whose trunk --finetune-encoder keeps.",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def train(model, data, out, config_file, overrides, steps, resume, quiet):
+def train(model, data, out, config_file, overrides, steps, resume, finetune_encoder, base, quiet):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
     from pathlib import Path
 
@@ -54,6 +69,7 @@ def train(model, data, out, config_file, overrides, steps, resume, quiet):
     from mcdenoise.train.checkpoint import RunFolder
     from mcdenoise.train.config import load_config
     from mcdenoise.train.kalantari import train_kalantari
+    from mcdenoise.train.kpcn import train_kpcn
 
     values = params_from_strings(overrides, option="--set")
     if model is not None:
@@ -62,12 +78,20 @@ def train(model, data, out, config_file, overrides, steps, resume, quiet):
         values["data"] = data
     if steps is not None:
         values["steps"] = str(steps)
+    if finetune_encoder is not None:
+        values["finetune_encoder"] = finetune_encoder
+        values.setdefault("model", "kpcn")
+    if base is not None:
+        values["base"] = base
     run = RunFolder(out)
     if resume and config_file is None and run.exists():
         # Resume from the folder alone: its resolved config, then the flags.
         config_file = str(run.config_path)
     cfg = load_config(config_file, values)
-    result, report = train_kalantari(cfg, out, resume=resume, progress=not quiet)
+    trainer = train_kpcn if cfg.model == "kpcn" else train_kalantari
+    result, report = trainer(cfg, out, resume=resume, progress=not quiet)
+    if result.rank != 0:  # under torchrun only rank 0 reports
+        return
     if report.skipped:
         click.echo(report.summary(), err=True)
     last = result.metrics[-1] if result.metrics else {}

@@ -40,6 +40,7 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.models.weights import (
     NO_ALBEDO,
     load_kalantari,
+    load_kpcn,
     shipped_model_for,
     shipped_model_path,
 )
@@ -124,6 +125,34 @@ for _kind, _what in (("xbf", "cross-bilateral bandwidths"), ("nlm", "NLM k and f
             priority=25 if _kind == "nlm" else 30,
         )
     )
+
+def _run_kpcn(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
+    name = str(params["model"])
+    if name in ("", SHIPPED):
+        path = shipped_model_path("kpcn")
+        if not path.is_file():
+            raise InputError("kpcn: no shipped weights in this install; pass -p model=RUN_FOLDER")
+    else:
+        path = name
+    model = load_kpcn(path).to(device)
+    source = str(params["source"])
+    return model.denoise(
+        b, source=None if source == "auto" else source, tile=int(params["tile"])
+    )
+
+
+register(
+    Method(
+        name="kpcn",
+        summary="kernel-predicting CNN, source-aware encoder, 3-scale kernels (Bako 2017, "
+        "Vogels 2018); -p model=RUN",
+        requires=("color", "albedo", "normal"),
+        uses=("color_var", *GUIDES, *GUIDE_VARS),
+        defaults={"model": SHIPPED, "source": "auto", "tile": 1024},
+        run=_run_kpcn,
+        priority=40 if shipped_model_path("kpcn").is_file() else -1,
+    )
+)
 
 register(
     Method(

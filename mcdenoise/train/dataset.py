@@ -240,6 +240,9 @@ class PatchSampler:
         margin: context on each side (>= the model's filter radius).
         importance: share of crops drawn ∝ the noisy error of the patch (key ``noisy_key``).
         noisy_key: tensor holding the noisy colour used for the importance map.
+        transform: optional ``(batch, generator) -> batch`` applied to every batch (e.g. the
+            augmentation of :func:`augment`); it must draw its randomness from the generator,
+            so a resumed run repeats it exactly.
     """
 
     def __init__(
@@ -250,7 +253,9 @@ class PatchSampler:
         margin: int,
         importance: float = 0.5,
         noisy_key: str = "color",
+        transform: Callable[[dict[str, Tensor], torch.Generator], dict[str, Tensor]] | None = None,
     ) -> None:
+        self.transform = transform
         if not items:
             raise InputError("no usable training images (see the loading report)")
         self.items = list(items)
@@ -311,7 +316,41 @@ class PatchSampler:
             for k, v in it.tensors.items():
                 out.setdefault(k, []).append(v[:, y : y + self.crop, x : x + self.crop])
             out.setdefault("mask", []).append(self.mask(y, x, it.size))
-        return {k: torch.stack(v) for k, v in out.items()}
+        batch = {k: torch.stack(v) for k, v in out.items()}
+        return self.transform(batch, g) if self.transform is not None else batch
+
+
+def augment(
+    batch: dict[str, Tensor], g: torch.Generator, color_keys: Sequence[str] = ()
+) -> dict[str, Tensor]:
+    """Random flips, 90° rotations and (for ``color_keys``) RGB permutations, per crop.
+
+    Every tensor ``(B, C, H, W)`` of the batch (square crops) gets the same geometric transform
+    per crop; the tensors named in ``color_keys`` (3 channels: colour, albedo, reference) get
+    the same channel permutation. Randomness comes from ``g`` only.
+    """
+    n = next(iter(batch.values())).shape[0]
+    flips = torch.randint(2, (n, 2), generator=g)
+    rots = torch.randint(4, (n,), generator=g)
+    perms = torch.stack([torch.randperm(3, generator=g) for _ in range(n)])
+    out = {}
+    for key, v in batch.items():
+        if v.ndim != 4:
+            out[key] = v
+            continue
+        items = []
+        for i in range(n):
+            x = v[i]
+            if flips[i, 0]:
+                x = x.flip(-1)
+            if flips[i, 1]:
+                x = x.flip(-2)
+            x = torch.rot90(x, int(rots[i]), dims=(-2, -1))
+            if key in color_keys and x.shape[0] == 3:
+                x = x[perms[i]]
+            items.append(x)
+        out[key] = torch.stack(items).contiguous()
+    return out
 
 
 def masked_relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:

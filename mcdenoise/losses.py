@@ -1,0 +1,127 @@
+"""Training losses on linear HDR colour: SMAPE, relMSE, L1 and Vogels' asymmetric loss.
+
+Every loss takes ``output`` and ``reference`` of shape ``(B, 3, H, W)`` (linear HDR RGB, the
+remodulated colour, not tonemapped) and an optional ``mask`` ``(B, 1, H, W)`` of 0/1 weights
+(the crop centre away from borders); the mean is over the masked pixels and the channels.
+They are computed in float32 (or float64 if the inputs are) even under autocast.
+
+* ``smape``: ``|d - r| / (|d| + |r| + 0.01)`` (Vogels et al. 2018; OIDN's training uses the
+  same ε). Scale-invariant and bounded by 1, so one bright firefly cannot dominate a batch.
+* ``relmse``: ``(d - r)² / (r² + 0.01)`` (the evaluation metric of this package).
+* ``l1``: ``|d - r|``.
+* ``asymmetric``: Vogels 2018, eq. 9: ``smape · (1 + (λ - 1) · H((d - r)(r - x)))`` with ``x``
+  the noisy input and ``H`` the Heaviside step: a result on the *far side* of the reference from
+  the noisy input (over-smoothed past it) costs λ times more, so the network keeps closer to the
+  input where it is unsure: more detail, a little more residual noise. λ = 1 is SMAPE.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from mcdenoise.eval.metrics import RELMSE_EPS
+
+#: ε of SMAPE (Vogels 2018).
+SMAPE_EPS = 0.01
+
+
+def _masked_mean(err: Tensor, mask: Tensor | None) -> Tensor:
+    if mask is None:
+        return err.mean()
+    mask = mask.to(err.dtype)
+    return (err * mask).sum() / (mask.sum() * err.shape[1]).clamp_min(1.0)
+
+
+def _f32(t: Tensor) -> Tensor:
+    return t if t.dtype == torch.float64 else t.float()
+
+
+def smape_map(output: Tensor, reference: Tensor) -> Tensor:
+    """Per-element SMAPE ``|d - r| / (|d| + |r| + ε)``, same shape as the inputs."""
+    d, r = _f32(output), _f32(reference)
+    return (d - r).abs() / (d.abs() + r.abs() + SMAPE_EPS)
+
+
+def smape(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Mean SMAPE over the masked pixels (scalar)."""
+    with torch.autocast(output.device.type, enabled=False):
+        return _masked_mean(smape_map(output, reference), mask)
+
+
+def relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Mean relMSE ``(d - r)² / (r² + ε)`` over the masked pixels (scalar)."""
+    with torch.autocast(output.device.type, enabled=False):
+        d, r = _f32(output), _f32(reference)
+        return _masked_mean((d - r).square() / (r.square() + RELMSE_EPS), mask)
+
+
+def l1(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Mean absolute error over the masked pixels (scalar)."""
+    with torch.autocast(output.device.type, enabled=False):
+        return _masked_mean((_f32(output) - _f32(reference)).abs(), mask)
+
+
+def asymmetric(
+    output: Tensor,
+    reference: Tensor,
+    noisy: Tensor,
+    mask: Tensor | None = None,
+    slope: float = 2.0,
+) -> Tensor:
+    """Vogels' asymmetric SMAPE with slope λ = ``slope`` (see the module docstring).
+
+    Args:
+        noisy: the noisy input colour ``x`` ``(B, 3, H, W)``, same space as ``output``.
+        slope: λ >= 1.
+    """
+    if slope < 1:
+        raise ValueError(f"asymmetric loss slope must be >= 1, got {slope}")
+    with torch.autocast(output.device.type, enabled=False):
+        d, r, x = _f32(output), _f32(reference), _f32(noisy)
+        far_side = ((d - r) * (r - x) > 0).to(d.dtype)
+        return _masked_mean(smape_map(d, r) * (1 + (slope - 1) * far_side), mask)
+
+
+LossFn = Callable[..., Tensor]
+#: Loss name -> function ``(output, reference, mask)``; ``asymmetric`` also takes ``noisy``.
+LOSSES: dict[str, LossFn] = {
+    "smape": smape,
+    "relmse": relmse,
+    "l1": l1,
+    "asymmetric": asymmetric,
+}
+
+
+def compute_loss(
+    name: str,
+    output: Tensor,
+    reference: Tensor,
+    mask: Tensor | None = None,
+    *,
+    noisy: Tensor | None = None,
+    slope: float = 2.0,
+) -> Tensor:
+    """The loss ``name`` (a key of :data:`LOSSES`); ``noisy`` is required for ``asymmetric``."""
+    if name == "asymmetric":
+        if noisy is None:
+            raise ValueError("the asymmetric loss needs the noisy input")
+        return asymmetric(output, reference, noisy, mask, slope)
+    if name not in LOSSES:
+        raise ValueError(f"unknown loss {name!r}; known: {', '.join(LOSSES)}")
+    return LOSSES[name](output, reference, mask)
+
+
+__all__ = [
+    "LOSSES",
+    "RELMSE_EPS",
+    "SMAPE_EPS",
+    "asymmetric",
+    "compute_loss",
+    "l1",
+    "relmse",
+    "smape",
+    "smape_map",
+]

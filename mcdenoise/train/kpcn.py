@@ -1,0 +1,260 @@
+"""Training the kernel-predicting CNN (``kpcn``), and fine-tuning a new source encoder.
+
+Data: a folder made by ``mcdenoise render`` (every spp level of every image; the split is by
+image). Each image is prepared once for the ``full`` source (:func:`prepare_tensors`); crops
+are drawn ∝ the noisy error (:class:`~mcdenoise.train.dataset.PatchSampler`), augmented
+(flips, 90° rotations, RGB permutations) and each crop is shown to the network as one of the
+trained sources (round robin from a random offset, so every encoder is used every step when
+``batch >= len(sources)``): a ``basic`` crop simply lacks the variance, depth, position and
+feature variances. The loss (default SMAPE, :mod:`mcdenoise.losses`) is computed on the crop
+centre, in float32.
+
+Validation runs the model on the *whole* validation images once per source and reports the
+relMSE geometric mean per source and per spp level, with the noisy input's for scale;
+``val_loss`` (which picks the exported ``model.pt``) is the geometric mean over images and
+sources.
+
+Fine-tuning (``finetune_encoder = SOURCE``, ``base = RUN``, Vogels 2018): the model of ``base``
+is loaded, an encoder for ``SOURCE`` is added (or reset) with statistics from this data set,
+and only that encoder is trained; the trunk and the other encoders stay frozen.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from mcdenoise.errors import InputError
+from mcdenoise.losses import compute_loss
+from mcdenoise.models.encoders import (
+    COLOR_TENSORS,
+    SOURCES,
+    channel_names,
+    encoder,
+    prepare_tensors,
+    source_channels,
+)
+from mcdenoise.models.features import FeatureStats
+from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
+from mcdenoise.train.checkpoint import RunFolder
+from mcdenoise.train.config import TrainConfig
+from mcdenoise.train.dataset import (
+    Item,
+    LoadReport,
+    PatchSampler,
+    augment,
+    crop_log_relmse,
+    geometric_mean,
+    image_relmse,
+    load_items,
+    scan_dataset,
+    split_images,
+)
+from mcdenoise.train.loop import TrainResult, setup_torch, train
+
+#: Pixel stride of the samples the normalisation statistics are computed from.
+STATS_STRIDE = 4
+#: Default kernel edge when the config says 0.
+DEFAULT_KERNEL = 21
+
+
+def source_stats(items: Sequence[Item], source: str) -> FeatureStats:
+    """Per-channel mean / std of ``source``'s input channels over the items' pixels."""
+    samples = []
+    for it in items:
+        t = {k: v[None] for k, v in it.tensors.items()}
+        samples.append(source_channels(source, t)[..., ::STATS_STRIDE, ::STATS_STRIDE])
+    return FeatureStats.from_samples(channel_names(source), samples)
+
+
+class KpcnTask:
+    """A :class:`~mcdenoise.train.loop.Task` for a :class:`KpcnModel`."""
+
+    def __init__(
+        self,
+        model: KpcnModel,
+        val_items: Sequence[Item],
+        description: dict[str, Any],
+        cfg: TrainConfig,
+        val_sources: Sequence[str],
+    ) -> None:
+        self.module = model
+        self.forward_module = model
+        self.model = model
+        self.val_items = list(val_items)
+        self.description = description
+        self.cfg = cfg
+        self.val_sources = list(val_sources)
+        self.last_val: dict[str, float] = {}
+        self._noisy: list[float] | None = None
+        # DDP: with fewer crops per step than sources, some encoder gets no gradient
+        self.find_unused_parameters = cfg.batch < len(val_sources)
+
+    def loss(self, batch: dict[str, Tensor]) -> Tensor:
+        out = self.forward_module(batch)
+        if self.cfg.loss == "log-relmse":
+            return crop_log_relmse(out.float(), batch["reference"], batch["mask"])
+        return compute_loss(
+            self.cfg.loss,
+            out,
+            batch["reference"],
+            batch["mask"],
+            noisy=batch["color"],
+            slope=self.cfg.asym_slope,
+        )
+
+    def validate(self) -> dict[str, float]:
+        if not self.val_items:
+            return {}
+        device = next(self.model.parameters()).device
+        if self._noisy is None:
+            self._noisy = [
+                image_relmse(it.tensors["color"], it.tensors["reference"]) for it in self.val_items
+            ]
+        res: dict[str, float] = {}
+        every: list[float] = []
+        for src in self.val_sources:
+            errs = []
+            for it in self.val_items:
+                t = {k: v[None].to(device) for k, v in it.tensors.items() if k != "reference"}
+                out = self.model.denoise_tensors(t, src)[0].cpu()
+                errs.append(image_relmse(out, it.tensors["reference"]))
+            every += errs
+            res[f"val_{src}_geomean"] = geometric_mean(errs)
+            res[f"val_{src}_ratio_to_noisy"] = geometric_mean(errs) / geometric_mean(self._noisy)
+            for spp in sorted({it.entry.spp for it in self.val_items if it.entry.spp}):
+                idx = [i for i, it in enumerate(self.val_items) if it.entry.spp == spp]
+                res[f"val_{src}_spp{spp}"] = geometric_mean([errs[i] for i in idx])
+        res["val_loss"] = geometric_mean(every) if every else math.inf
+        self.last_val = res
+        return res
+
+    def export(self, path: Path) -> None:
+        self.model.card.training = {**self.description, "validation": dict(self.last_val)}
+        self.model.save(path)
+
+
+def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
+    """The base model with a fresh encoder for ``cfg.finetune_encoder``; all else frozen."""
+    src = cfg.finetune_encoder
+    if src not in SOURCES:
+        raise InputError(f"unknown source {src!r}; known: {', '.join(SOURCES)}")
+    base = KpcnModel.load(cfg.base)
+    if base.card.encoder != "source-aware":
+        raise InputError(f"{cfg.base}: a shared-encoder model has no per-source encoder to train")
+    stats = dict(base.card.stats)
+    stats[src] = source_stats(train_items, src)
+    sources = [s for s in SOURCES if s in base.card.sources or s == src]
+    card = KpcnCard(
+        sources,
+        stats,
+        list(base.card.channels),
+        base.card.kernel,
+        base.card.scales,
+        base.card.encoder,
+        training={"base": str(cfg.base), "base_training": base.card.training},
+    )
+    model = KpcnModel(card)
+    state = {k: v for k, v in base.state_dict().items() if not k.startswith(f"norms.{src}.")}
+    state = {k: v for k, v in state.items() if not k.startswith(f"encoders.{src}.")}
+    _, unexpected = model.load_state_dict(state, strict=False)
+    assert not unexpected, unexpected
+    model.encoders[src] = encoder(len(channel_names(src)), card.channels[0])
+    for name, p in model.named_parameters():
+        p.requires_grad_(name.startswith(f"encoders.{src}."))
+    return model
+
+
+def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchSampler, LoadReport]:
+    """Scan, split, load and prepare the data, compute statistics, make (or load) the model.
+
+    Raises:
+        InputError: bad sources, crop size, no usable training image, bad base model.
+    """
+    if not cfg.data:
+        raise InputError("no training data: pass --data DIR (a folder made by mcdenoise render)")
+    unknown = [s for s in cfg.sources if s not in SOURCES]
+    if unknown or not cfg.sources:
+        raise InputError(f"unknown or no sources {cfg.sources}; known: {', '.join(SOURCES)}")
+    sources = [s for s in SOURCES if s in cfg.sources]
+    entries = scan_dataset(cfg.data, cfg.levels)
+    train_e, val_e = split_images(entries, cfg.val_fraction, cfg.seed, cfg.max_images)
+
+    def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
+        return {**prepare_tensors(buffers, "full"), "reference": ref}
+
+    crop = cfg.patch + 2 * cfg.margin
+    train_items, report = load_items(train_e, prepare, min_size=crop, progress=progress)
+    val_items, val_report = load_items(val_e, prepare, min_size=1, progress=progress)
+    report.skipped += val_report.skipped
+    if not train_items:
+        raise InputError(f"{cfg.data}: no usable training image\n{report.summary()}")
+    torch.manual_seed(cfg.seed)
+    if cfg.finetune_encoder:
+        model = _finetune_model(cfg, train_items)
+        trained = [cfg.finetune_encoder]
+    else:
+        stats = {s: source_stats(train_items, s) for s in sources}
+        model = new_model(
+            sources,
+            stats,
+            channels=cfg.channels,
+            kernel=cfg.kernel or DEFAULT_KERNEL,
+            scales=cfg.scales,
+            encoder=cfg.encoder,
+        )
+        trained = sources
+    if crop % model.multiple:
+        raise InputError(
+            f"patch + 2 * margin = {crop} must be a multiple of {model.multiple} "
+            f"(the U-Net pools {len(cfg.channels) - 1} times)"
+        )
+    index = {s: i for i, s in enumerate(model.card.sources)}
+    codes = torch.tensor([index[s] for s in trained])
+
+    def transform(batch: dict[str, Tensor], g: torch.Generator) -> dict[str, Tensor]:
+        if cfg.augment:
+            batch = augment(batch, g, COLOR_TENSORS)
+        n = batch["color"].shape[0]
+        offset = int(torch.randint(len(codes), (), generator=g))
+        batch["source"] = codes[(torch.arange(n) + offset) % len(codes)]
+        return batch
+
+    sampler = PatchSampler(
+        train_items,
+        patch=cfg.patch,
+        margin=cfg.margin,
+        importance=cfg.importance,
+        noisy_key="color",
+        transform=transform,
+    )
+    description = {
+        "data": str(cfg.data),
+        "train_images": sorted({it.entry.image for it in train_items}),
+        "val_images": sorted({it.entry.image for it in val_items}),
+        "levels": sorted({it.entry.spp for it in train_items if it.entry.spp}),
+        "config": cfg.to_dict(),
+    }
+    task = KpcnTask(model, val_items, description, cfg, trained)
+    return task, sampler, report
+
+
+def train_kpcn(
+    cfg: TrainConfig, out: str | Path, *, resume: bool = False, progress: bool = True
+) -> tuple[TrainResult, LoadReport]:
+    """Train (or fine-tune) a kpcn model into the run folder ``out``."""
+    setup_torch(cfg)
+    t0 = time.perf_counter()
+    task, sampler, report = build(cfg, progress=progress)
+    result = train(cfg, task, sampler, RunFolder(out), resume=resume, progress=progress)
+    result.seconds = time.perf_counter() - t0
+    return result, report
+
+
+__all__ = ["DEFAULT_KERNEL", "KpcnTask", "build", "source_stats", "train_kpcn"]
