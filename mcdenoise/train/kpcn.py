@@ -136,7 +136,12 @@ class KpcnTask:
         return res
 
     def export(self, path: Path) -> None:
-        self.model.card.training = {**self.description, "validation": dict(self.last_val)}
+        # keep what the card already records (a fine-tuned model's base and its training)
+        self.model.card.training = {
+            **self.model.card.training,
+            **self.description,
+            "validation": dict(self.last_val),
+        }
         self.model.save(path)
 
 
