@@ -8,6 +8,9 @@ kalantari-xbf      two-pass cross-bilateral filter whose per-pixel bandwidths   
                    ``model`` = a run folder or model file, default the shipped
                    weights
 kalantari-nlm      the same learning for NLM (per-pixel k and feature k_f)         25
+kpcn               kernel-predicting U-Net (Bako 2017) with source-aware           15
+                   encoders and 3-scale kernels (Vogels 2018); ``model`` = a run
+                   folder or model file, default the shipped weights
 nlm                variance-normalised non-local means with feature weights    20
                    (Rousselle 2012/2013), albedo-demodulated
 cross-bilateral    cross-bilateral filter with Kalantari 2015 terms, fixed     10
@@ -23,7 +26,10 @@ renders; kalantari-xbf ranks first (geometric-mean relMSE 14 % below kalantari-n
 equal at 16, 2 % above at 64, and faster). kalantari-xbf serves inputs without albedo with
 its shipped no-albedo variant; inputs without normal, depth or position fall back to nlm. OIDN is
 deliberately never the default: mcdenoise's own methods are what it reports on, OIDN is the
-baseline they are compared with.
+baseline they are compared with. ``kpcn`` ranks below ``nlm``: ``benchmarks/bench_kpcn.py``
+measured the shipped model (8000 CPU steps) at 1.5-1.7x kalantari-xbf's relMSE on held-out
+renders, and on colour + albedo + normal files (no variance, depth, position) better than nlm
+at 4 spp but worse at 16 and 64 (geometric mean over the three levels 0.0060 vs 0.0057).
 """
 
 from __future__ import annotations
@@ -126,6 +132,7 @@ for _kind, _what in (("xbf", "cross-bilateral bandwidths"), ("nlm", "NLM k and f
         )
     )
 
+
 def _run_kpcn(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
     name = str(params["model"])
     if name in ("", SHIPPED):
@@ -136,9 +143,7 @@ def _run_kpcn(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device
         path = name
     model = load_kpcn(path).to(device)
     source = str(params["source"])
-    return model.denoise(
-        b, source=None if source == "auto" else source, tile=int(params["tile"])
-    )
+    return model.denoise(b, source=None if source == "auto" else source, tile=int(params["tile"]))
 
 
 register(
@@ -150,7 +155,7 @@ register(
         uses=("color_var", *GUIDES, *GUIDE_VARS),
         defaults={"model": SHIPPED, "source": "auto", "tile": 1024},
         run=_run_kpcn,
-        priority=40 if shipped_model_path("kpcn").is_file() else -1,
+        priority=15 if shipped_model_path("kpcn").is_file() else -1,
     )
 )
 

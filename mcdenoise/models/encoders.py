@@ -105,7 +105,10 @@ def prepare_tensors(buffers: FeatureBuffers, source: str) -> dict[str, Tensor]:
     missing = [g for g in guides if g not in inp.features]
     if missing:
         raise MissingFeatureError(
-            missing, sorted(buffers.buffers), source=buffers.source, needed_by="kpcn (no scene extent)"
+            missing,
+            sorted(buffers.buffers),
+            source=buffers.source,
+            needed_by="kpcn (no scene extent)",
         )
     out = {"color": inp.color[0]}
     if source == "full":

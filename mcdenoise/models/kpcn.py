@@ -184,8 +184,10 @@ class KpcnModel(nn.Module):
     def halo(self) -> int:
         """Tile overlap (pixels, a multiple of :attr:`multiple`) covering the receptive field."""
         levels = len(self.card.channels)
-        conv = 2 + sum(2 * 2**i for i in range(1, levels)) + sum(2 * 2**i for i in range(levels - 1))
-        kern = (self.card.kernel // 2 + 1) * 2 ** (self.card.scales - 1) + 2 ** self.card.scales
+        conv = (
+            2 + sum(2 * 2**i for i in range(1, levels)) + sum(2 * 2**i for i in range(levels - 1))
+        )
+        kern = (self.card.kernel // 2 + 1) * 2 ** (self.card.scales - 1) + 2**self.card.scales
         need = conv + kern + 2**levels
         m = self.multiple
         return -(-need // m) * m
@@ -282,7 +284,9 @@ class KpcnModel(nn.Module):
         """
         src = source or self.source_for(buffers)
         if src not in self.card.sources:
-            raise InputError(f"this kpcn model has no '{src}' source ({', '.join(self.card.sources)})")
+            raise InputError(
+                f"this kpcn model has no '{src}' source ({', '.join(self.card.sources)})"
+            )
         device = next(self.parameters()).device
         t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, src).items()}
         return self.denoise_tensors(t, src, tile=tile, strip=strip)[0]
