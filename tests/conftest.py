@@ -39,6 +39,45 @@ def _deterministic_torch():
     yield
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread_modules(request: pytest.FixtureRequest):
+    """Modules that set ``ONE_THREAD = True`` run with one intra-op thread (before their own
+    module fixtures): two cores are shared with other jobs, and these tests time nothing."""
+    if not getattr(request.module, "ONE_THREAD", False):
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+@pytest.fixture
+def interrupted_training(monkeypatch: pytest.MonkeyPatch):
+    """``run(train_fn, cfg, out, at)``: ``train_fn(cfg, out)`` with a Ctrl-C raised when the
+    patch sampler draws its ``at``-th batch (a kill in the middle of step ``at``)."""
+    from mcdenoise.train.dataset import PatchSampler
+
+    def run(train_fn, cfg, out, at: int) -> None:
+        real_batch = PatchSampler.batch
+        calls = {"n": 0}
+
+        def killed(self, size, g):
+            calls["n"] += 1
+            if calls["n"] == at:
+                raise KeyboardInterrupt
+            return real_batch(self, size, g)
+
+        monkeypatch.setattr(PatchSampler, "batch", killed)
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                train_fn(cfg, out, progress=False)
+        finally:
+            monkeypatch.setattr(PatchSampler, "batch", real_batch)
+
+    return run
+
+
 @pytest.fixture
 def samples_dir() -> Path:
     """The shipped sample renders (data/samples): they are part of the repo, so never skipped."""

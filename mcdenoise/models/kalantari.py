@@ -37,7 +37,6 @@ import json
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -63,7 +62,7 @@ from mcdenoise.models.features import (
     compute_features,
     feature_names,
 )
-from mcdenoise.train.checkpoint import CheckpointError, load_state, save_state
+from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kalantari/1"
@@ -323,22 +322,13 @@ class KalantariModel(nn.Module):
             CheckpointError: missing/truncated file. InputError: wrong format or a feature set
             that differs from what this version computes (the message names the difference).
         """
-        p = Path(path)
-        if p.is_dir():
-            p = p / "model.pt"
-        state = load_state(p)
-        if "card" not in state or "state" not in state:
-            raise CheckpointError(f"{p}: not a Kalantari model file (no model card)")
+        p, state = read_model_file(path)
         card = ModelCard.from_dict(state["card"], what=str(p))
         try:
             model = KalantariModel(card)
         except InputError as err:
             raise InputError(f"{p}: {err}") from None
-        try:
-            model.load_state_dict(state["state"])
-        except RuntimeError as err:
-            first = str(err).splitlines()[0]
-            raise InputError(f"{p}: weights do not match the model card ({first})") from None
+        load_weights(model, state["state"], p)
         model.eval()
         return model
 

@@ -36,7 +36,6 @@ import json
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -58,7 +57,7 @@ from mcdenoise.models.encoders import (
 )
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.multiscale import apply_head, composite, downsample
-from mcdenoise.train.checkpoint import CheckpointError, load_state, save_state
+from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kpcn/1"
@@ -332,19 +331,9 @@ class KpcnModel(nn.Module):
             CheckpointError: missing/truncated file. InputError: not a kpcn model, or one whose
             input channels differ from what this version computes (the message names them).
         """
-        p = Path(path)
-        if p.is_dir():
-            p = p / "model.pt"
-        state = load_state(p)
-        if "card" not in state or "state" not in state:
-            raise CheckpointError(f"{p}: not a model file (no model card)")
-        card = KpcnCard.from_dict(state["card"], what=str(p))
-        model = KpcnModel(card)
-        try:
-            model.load_state_dict(state["state"])
-        except RuntimeError as err:
-            first = str(err).splitlines()[0]
-            raise InputError(f"{p}: weights do not match the model card ({first})") from None
+        p, state = read_model_file(path)
+        model = KpcnModel(KpcnCard.from_dict(state["card"], what=str(p)))
+        load_weights(model, state["state"], p)
         model.eval()
         return model
 

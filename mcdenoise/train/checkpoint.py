@@ -50,6 +50,33 @@ def load_state(path: str | os.PathLike[str]) -> dict[str, Any]:
     return state
 
 
+def read_model_file(path: str | os.PathLike[str]) -> tuple[Path, dict[str, Any]]:
+    """``(file, state)`` of a model file or a run folder's ``model.pt``: a dict with a JSON
+    ``card`` and the weights ``state``.
+
+    Raises:
+        CheckpointError: missing/truncated file, or a file without a model card.
+    """
+    p = Path(path)
+    if p.is_dir():
+        p = p / "model.pt"
+    state = load_state(p)
+    if "card" not in state or "state" not in state:
+        raise CheckpointError(f"{p}: not a model file (no model card)")
+    return p, state
+
+
+def load_weights(module: torch.nn.Module, state: dict[str, Any], path: Path) -> None:
+    """``module.load_state_dict(state)``; a mismatch is a one-line InputError naming ``path``."""
+    from mcdenoise.errors import InputError
+
+    try:
+        module.load_state_dict(state)
+    except RuntimeError as err:
+        first = str(err).splitlines()[0]
+        raise InputError(f"{path}: weights do not match the model card ({first})") from None
+
+
 def save_state(state: dict[str, Any], path: str | os.PathLike[str]) -> None:
     """``torch.save`` atomically."""
     with atomic_path(path) as tmp:

@@ -14,7 +14,6 @@ learned / fixed, per spp level too.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -32,7 +31,6 @@ from mcdenoise.models.kalantari import (
     prepare_item,
     settings_class,
 )
-from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
     Item,
@@ -46,7 +44,7 @@ from mcdenoise.train.dataset import (
     scan_dataset,
     split_images,
 )
-from mcdenoise.train.loop import TrainResult, setup_torch, train
+from mcdenoise.train.loop import TrainResult, run_training
 
 #: Trainable model names -> filter kind.
 MODELS = {"kalantari-xbf": "xbf", "kalantari-nlm": "nlm"}
@@ -202,10 +200,4 @@ def train_kalantari(
     cfg: TrainConfig, out: str | Path, *, resume: bool = False, progress: bool = True
 ) -> tuple[TrainResult, LoadReport]:
     """Train a Kalantari model into the run folder ``out`` (see :mod:`mcdenoise.train.loop`)."""
-    setup_torch(cfg)
-    t0 = time.perf_counter()
-    task, sampler, report = build(cfg, progress=progress)
-    run = RunFolder(out)
-    result = train(cfg, task, sampler, run, resume=resume, progress=progress)
-    result.seconds = time.perf_counter() - t0
-    return result, report
+    return run_training(cfg, build, out, resume=resume, progress=progress)

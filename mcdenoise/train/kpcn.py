@@ -22,7 +22,6 @@ and only that encoder is trained; the trunk and the other encoders stay frozen.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -42,7 +41,6 @@ from mcdenoise.models.encoders import (
 )
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
-from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
     Item,
@@ -56,7 +54,7 @@ from mcdenoise.train.dataset import (
     scan_dataset,
     split_images,
 )
-from mcdenoise.train.loop import TrainResult, setup_torch, train
+from mcdenoise.train.loop import TrainResult, run_training
 
 #: Pixel stride of the samples the normalisation statistics are computed from.
 STATS_STRIDE = 4
@@ -254,12 +252,7 @@ def train_kpcn(
     cfg: TrainConfig, out: str | Path, *, resume: bool = False, progress: bool = True
 ) -> tuple[TrainResult, LoadReport]:
     """Train (or fine-tune) a kpcn model into the run folder ``out``."""
-    setup_torch(cfg)
-    t0 = time.perf_counter()
-    task, sampler, report = build(cfg, progress=progress)
-    result = train(cfg, task, sampler, RunFolder(out), resume=resume, progress=progress)
-    result.seconds = time.perf_counter() - t0
-    return result, report
+    return run_training(cfg, build, out, resume=resume, progress=progress)
 
 
 __all__ = ["DEFAULT_KERNEL", "KpcnTask", "build", "source_stats", "train_kpcn"]

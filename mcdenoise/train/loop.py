@@ -28,6 +28,7 @@ import contextlib
 import math
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -40,7 +41,7 @@ from tqdm import tqdm
 from mcdenoise.errors import InputError
 from mcdenoise.train.checkpoint import CheckpointError, RunFolder
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import PatchSampler
+from mcdenoise.train.dataset import LoadReport, PatchSampler
 from mcdenoise.train.distributed import (
     DistContext,
     all_gather_object,
@@ -461,6 +462,24 @@ def _validate_and_save(
     return best
 
 
+def run_training(
+    cfg: TrainConfig,
+    build: Callable[..., tuple[Task, PatchSampler, LoadReport]],
+    out: str | Path,
+    *,
+    resume: bool = False,
+    progress: bool = True,
+) -> tuple[TrainResult, LoadReport]:
+    """Set torch up, ``build(cfg, progress=)`` the task and sampler, :func:`train` into the run
+    folder ``out``; ``seconds`` of the result includes loading the data."""
+    setup_torch(cfg)
+    t0 = time.perf_counter()
+    task, sampler, report = build(cfg, progress=progress)
+    result = train(cfg, task, sampler, RunFolder(out), resume=resume, progress=progress)
+    result.seconds = time.perf_counter() - t0
+    return result, report
+
+
 __all__ = [
     "AMP_DTYPES",
     "RANK_SEED_STRIDE",
@@ -469,6 +488,7 @@ __all__ = [
     "Task",
     "TrainResult",
     "lr_factor",
+    "run_training",
     "sampler_seed",
     "setup_torch",
     "train",

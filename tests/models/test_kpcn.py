@@ -29,13 +29,8 @@ ALL = list(SOURCES)  # full, basic, color
 FULL_BUFFERS = set(SOURCES["full"])
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """Two cores are shared with other jobs: one intra-op thread (before module fixtures)."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+#: one intra-op thread for this module (tests/conftest.py)
+ONE_THREAD = True
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,6 @@ from mcdenoise.errors import InputError
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.train.checkpoint import CheckpointError, RunFolder
 from mcdenoise.train.config import load_config
-from mcdenoise.train.dataset import PatchSampler
 from mcdenoise.train.kalantari import train_kalantari
 from mcdenoise.train.loop import lr_factor
 
@@ -55,24 +54,13 @@ def test_a_few_steps_lower_the_validation_relmse(tiny_dataset: Path, tmp_path: P
 
 
 def test_resume_after_a_kill_gives_identical_weights(
-    tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tiny_dataset: Path, tmp_path: Path, interrupted_training
 ) -> None:
     straight = tmp_path / "straight"
     train_kalantari(cfg(tiny_dataset), straight, progress=False)
     half = tmp_path / "half"
-    real_batch = PatchSampler.batch
-    calls = {"n": 0}
-
-    def killed_at_step_8(self, size, g):
-        calls["n"] += 1
-        if calls["n"] == 8:  # Ctrl-C during step 8: the checkpoint of step 6 is the latest
-            raise KeyboardInterrupt
-        return real_batch(self, size, g)
-
-    monkeypatch.setattr(PatchSampler, "batch", killed_at_step_8)
-    with pytest.raises(KeyboardInterrupt):
-        train_kalantari(cfg(tiny_dataset), half, progress=False)
-    monkeypatch.setattr(PatchSampler, "batch", real_batch)
+    # Ctrl-C during step 8: the checkpoint of step 6 is the latest
+    interrupted_training(train_kalantari, cfg(tiny_dataset), half, at=8)
     assert RunFolder(half).latest().name == "step_000006.pt"
     train_kalantari(cfg(tiny_dataset), half, resume=True, progress=False)
     a = torch.load(RunFolder(straight).latest(), weights_only=True)

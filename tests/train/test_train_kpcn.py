@@ -23,7 +23,7 @@ from mcdenoise.models.encoders import COLOR_TENSORS
 from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import load_config
-from mcdenoise.train.dataset import PatchSampler, augment
+from mcdenoise.train.dataset import augment
 from mcdenoise.train.kpcn import build, train_kpcn
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
@@ -44,13 +44,8 @@ TINY = {
 }
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """Two cores are shared with other jobs: one intra-op thread (before module fixtures)."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+#: one intra-op thread for this module (tests/conftest.py)
+ONE_THREAD = True
 
 
 def cfg(data: Path, **kw):
@@ -139,23 +134,12 @@ def test_train_kpcn_writes_a_loadable_run(base_run: Path, tiny_dataset: Path) ->
 
 
 def test_resume_after_a_kill_gives_identical_weights(
-    tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tiny_dataset: Path, tmp_path: Path, interrupted_training
 ) -> None:
     straight, half = tmp_path / "straight", tmp_path / "half"
     train_kpcn(cfg(tiny_dataset), straight, progress=False)
-    real_batch = PatchSampler.batch
-    calls = {"n": 0}
-
-    def killed_at_step_4(self, size, g):
-        calls["n"] += 1
-        if calls["n"] == 4:  # Ctrl-C during step 4: the checkpoint of step 2 is the latest
-            raise KeyboardInterrupt
-        return real_batch(self, size, g)
-
-    monkeypatch.setattr(PatchSampler, "batch", killed_at_step_4)
-    with pytest.raises(KeyboardInterrupt):
-        train_kpcn(cfg(tiny_dataset), half, progress=False)
-    monkeypatch.setattr(PatchSampler, "batch", real_batch)
+    # Ctrl-C during step 4: the checkpoint of step 2 is the latest
+    interrupted_training(train_kpcn, cfg(tiny_dataset), half, at=4)
     assert RunFolder(half).latest().name == "step_000002.pt"
     train_kpcn(cfg(tiny_dataset), half, resume=True, progress=False)
     a = torch.load(RunFolder(straight).latest(), weights_only=True)
