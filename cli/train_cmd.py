@@ -102,3 +102,11 @@ def train(model, data, out, config_file, overrides, steps, resume, finetune_enco
         + (f" (learned/fixed geometric mean {ratio:.3f})" if ratio is not None else "")
     )
     click.echo(f"model: {Path(out) / 'model.pt'}")
+    worse = {k: v for k, v in last.items() if k.endswith("_ratio_to_noisy") and v > 1}
+    if worse:
+        click.echo(
+            "warning: on the validation images the model is worse than its noisy input ("
+            + ", ".join(f"{k[4:-15]} {v:.2f}x" for k, v in sorted(worse.items()))
+            + "): training may have collapsed; try a longer warmup or a lower lr",
+            err=True,
+        )

@@ -352,3 +352,22 @@ def test_cli_kpcn_with_a_missing_model_fails_in_one_line(tmp_path: Path) -> None
     err = _one_line_error(r)
     assert "/nonexistent" in err
     assert not out.exists()
+
+
+def test_the_cli_warns_when_the_model_ends_worse_than_its_noisy_input(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mcdenoise.train.dataset import LoadReport
+    from mcdenoise.train.loop import TrainResult
+
+    def collapsed(cfg, out, *, resume=False, progress=True):
+        metrics = [{"step": 8, "val_full_ratio_to_noisy": 7.9, "val_basic_ratio_to_noisy": 0.2}]
+        return TrainResult(8, 0.47, 0, 1.0, metrics), LoadReport(used=4)
+
+    monkeypatch.setattr(train_kpcn_module, "train_kpcn", collapsed)
+    r = CliRunner().invoke(
+        main, ["train", "--model", "kpcn", "--data", str(tmp_path), "--out", str(tmp_path / "r")]
+    )
+    assert r.exit_code == 0, r.output
+    assert "worse than its noisy input (full 7.90x)" in r.output
+    assert "basic" not in r.output.split("warning:")[1]
