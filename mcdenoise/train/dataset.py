@@ -32,6 +32,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -223,6 +224,39 @@ def load_items(
         items.append(Item(e, {k: v.float().contiguous() for k, v in tensors.items()}))
     report.used = len(items)
     return items, report
+
+
+def load_split(
+    cfg: Any, prepare: Prepare, *, crop: int, progress: bool = False
+) -> tuple[list[Item], list[Item], LoadReport]:
+    """Scan ``cfg.data``, split by image (``cfg.val_fraction``, ``cfg.seed``, ``cfg.max_images``)
+    and prepare both parts: ``(train items, validation items, report of both)``. Training images
+    must hold a ``crop``-px crop.
+
+    Raises:
+        InputError: no usable training image (the report is in the message).
+    """
+    entries = scan_dataset(cfg.data, cfg.levels)
+    train_e, val_e = split_images(entries, cfg.val_fraction, cfg.seed, cfg.max_images)
+    train_items, report = load_items(train_e, prepare, min_size=crop, progress=progress)
+    val_items, val_report = load_items(val_e, prepare, min_size=1, progress=progress)
+    report.skipped += val_report.skipped
+    if not train_items:
+        raise InputError(f"{cfg.data}: no usable training image\n{report.summary()}")
+    return train_items, val_items, report
+
+
+def describe_training(
+    cfg: Any, train_items: Sequence[Item], val_items: Sequence[Item]
+) -> dict[str, Any]:
+    """What a model card records about its training data and config (JSON-able)."""
+    return {
+        "data": str(cfg.data),
+        "train_images": sorted({it.entry.image for it in train_items}),
+        "val_images": sorted({it.entry.image for it in val_items}),
+        "levels": sorted({it.entry.spp for it in train_items if it.entry.spp}),
+        "config": cfg.to_dict(),
+    }
 
 
 def error_map(noisy: Tensor, reference: Tensor) -> Tensor:

@@ -37,12 +37,11 @@ from mcdenoise.train.dataset import (
     LoadReport,
     PatchSampler,
     crop_log_relmse,
+    describe_training,
     geometric_mean,
     image_relmse,
-    load_items,
+    load_split,
     masked_relmse,
-    scan_dataset,
-    split_images,
 )
 from mcdenoise.train.loop import TrainResult, run_training
 
@@ -160,19 +159,13 @@ def build(
         overrides["passes"] = cfg.passes
     settings = settings_class(kind)(**overrides)
     guides = [g for g in GUIDE_FEATURES if g in cfg.guides]
-    entries = scan_dataset(cfg.data, cfg.levels)
-    train_e, val_e = split_images(entries, cfg.val_fraction, cfg.seed, cfg.max_images)
 
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
         return prepare_item(buffers, kind, settings, guides, ref)
 
     margin = max(cfg.margin, filter_radius(settings))
     crop = cfg.patch + 2 * margin
-    train_items, report = load_items(train_e, prepare, min_size=crop, progress=progress)
-    val_items, val_report = load_items(val_e, prepare, min_size=1, progress=progress)
-    report.skipped += val_report.skipped
-    if not train_items:
-        raise InputError(f"{cfg.data}: no usable training image\n{report.summary()}")
+    train_items, val_items, report = load_split(cfg, prepare, crop=crop, progress=progress)
     keys = set(train_items[0].tensors)
     guide_vars = [g for g in guides if f"fvar.{g}" in keys]
     val_items = [it for it in val_items if set(it.tensors) == keys]
@@ -183,13 +176,7 @@ def build(
     )
     torch.manual_seed(cfg.seed)
     model = new_model(kind, guides, guide_vars, stats, cfg.hidden, overrides)
-    description = {
-        "data": str(cfg.data),
-        "train_images": sorted({it.entry.image for it in train_items}),
-        "val_images": sorted({it.entry.image for it in val_items}),
-        "levels": sorted({it.entry.spp for it in train_items if it.entry.spp}),
-        "config": cfg.to_dict(),
-    }
+    description = describe_training(cfg, train_items, val_items)
     sampler = PatchSampler(
         train_items, patch=cfg.patch, margin=margin, importance=cfg.importance, noisy_key="color"
     )

@@ -48,11 +48,10 @@ from mcdenoise.train.dataset import (
     PatchSampler,
     augment,
     crop_log_relmse,
+    describe_training,
     geometric_mean,
     image_relmse,
-    load_items,
-    scan_dataset,
-    split_images,
+    load_split,
 )
 from mcdenoise.train.loop import TrainResult, run_training
 
@@ -186,18 +185,12 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
     if unknown or not cfg.sources:
         raise InputError(f"unknown or no sources {cfg.sources}; known: {', '.join(SOURCES)}")
     sources = [s for s in SOURCES if s in cfg.sources]
-    entries = scan_dataset(cfg.data, cfg.levels)
-    train_e, val_e = split_images(entries, cfg.val_fraction, cfg.seed, cfg.max_images)
 
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
         return {**prepare_tensors(buffers, "full"), "reference": ref}
 
     crop = cfg.patch + 2 * cfg.margin
-    train_items, report = load_items(train_e, prepare, min_size=crop, progress=progress)
-    val_items, val_report = load_items(val_e, prepare, min_size=1, progress=progress)
-    report.skipped += val_report.skipped
-    if not train_items:
-        raise InputError(f"{cfg.data}: no usable training image\n{report.summary()}")
+    train_items, val_items, report = load_split(cfg, prepare, crop=crop, progress=progress)
     torch.manual_seed(cfg.seed)
     if cfg.finetune_encoder:
         model = _finetune_model(cfg, train_items)
@@ -237,13 +230,7 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
         noisy_key="color",
         transform=transform,
     )
-    description = {
-        "data": str(cfg.data),
-        "train_images": sorted({it.entry.image for it in train_items}),
-        "val_images": sorted({it.entry.image for it in val_items}),
-        "levels": sorted({it.entry.spp for it in train_items if it.entry.spp}),
-        "config": cfg.to_dict(),
-    }
+    description = describe_training(cfg, train_items, val_items)
     task = KpcnTask(model, val_items, description, cfg, trained)
     return task, sampler, report
 

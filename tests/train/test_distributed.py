@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 import torch.multiprocessing as mp
+from tiny_settings import TINY_KALANTARI
 from torch import Tensor, nn
 
 from mcdenoise.errors import InputError
@@ -29,21 +30,8 @@ from mcdenoise.train.distributed import (
 from mcdenoise.train.kalantari import train_kalantari
 from mcdenoise.train.loop import sampler_seed, train
 
-#: The tiny Kalantari settings of tests/train/test_loop.py.
-TINY = {
-    "model": "kalantari-xbf",
-    "kernel": 5,
-    "patch": 16,
-    "margin": 2,
-    "batch": 4,
-    "steps": 12,
-    "epoch_steps": 6,
-    "lr": 1e-2,
-    "warmup": 2,
-    "val_fraction": 0.25,
-    "hidden": "8",
-    "threads": 1,
-}
+#: The tiny Kalantari settings shared with tests/train/test_loop.py.
+TINY = TINY_KALANTARI
 TORCHRUN_ENV = ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT")
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from tiny_settings import TINY_KALANTARI
 
 from mcdenoise.errors import InputError
 from mcdenoise.models.kalantari import KalantariModel
@@ -18,20 +19,7 @@ from mcdenoise.train.loop import lr_factor
 
 
 def cfg(data: Path, **kw):
-    base = {
-        "data": str(data),
-        "kernel": 5,
-        "patch": 16,
-        "margin": 2,
-        "batch": 4,
-        "steps": 12,
-        "epoch_steps": 6,
-        "lr": 1e-2,
-        "warmup": 2,
-        "val_fraction": 0.25,
-        "hidden": "8",
-        "threads": 1,
-    }
+    base = {"data": str(data), **TINY_KALANTARI}
     base.update({k: str(v) for k, v in kw.items()})
     return load_config(None, base)
 
