@@ -6,6 +6,12 @@ A kernel-predicting network outputs, per pixel and per scale ``s`` (full, 1/2, 1
 1. :func:`kernel_softmax`: logits -> kernel weights, a softmax over the ``k²`` taps computed in
    float32 with autocast disabled. NaN/±Inf/huge logits are sanitised first (NaN -> 0,
    clamped to ±:data:`LOGIT_LIMIT`), so the weights are always finite, non-negative and sum to 1.
+   With ``in_image=True`` the softmax runs over each pixel's *in-image* taps only (taps that
+   fall outside the image get weight exactly 0). That is the same function as a softmax over
+   all taps renormalised over the in-image ones, but its gradient stays finite: renormalising
+   by an in-image mass of 1e-30 (a border pixel whose kernel points out of the image) divides
+   by its square in the backward pass, which underflows to 0 and made 1 training step in 6
+   non-finite before this was changed.
 2. :func:`apply_head`: runs a 1×1 head (features -> logits), the softmax and
    :func:`~mcdenoise.filters.kernels.apply_kernels` in strips of rows, so the ``k² × H × W``
    weight tensor never exists for the whole image (441 planes of a 4K frame are 14.6 GB). The
@@ -26,6 +32,7 @@ Everything is differentiable; images are linear HDR ``(B, C, H, W)``, ``H`` and 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import torch
@@ -43,20 +50,45 @@ def _f32(t: Tensor) -> Tensor:
     return t if t.dtype in (torch.float32, torch.float64) else t.float()
 
 
-def kernel_softmax(logits: Tensor) -> Tensor:
+def _mask_out_of_image(z: Tensor) -> None:
+    """Set, in place, the logits of taps that fall outside the image to -inf.
+
+    Channel ``(dy + r) * k + (dx + r)`` is the tap at offset ``(dy, dx)``: the taps of one ``dy``
+    are a block of ``k`` channels, those of one ``dx`` every ``k``-th channel, so ``4 r`` slice
+    assignments on the border bands do it.
+    """
+    k = round(z.shape[1] ** 0.5)
+    r = k // 2
+    h, w = z.shape[-2:]
+    for d in range(1, r + 1):
+        lo, hi = (r - d) * k, (r + d) * k  # first channel of the dy = -d and dy = +d blocks
+        z[:, lo : lo + k, : min(d, h)] = -math.inf
+        z[:, hi : hi + k, max(0, h - d) :] = -math.inf
+        z[:, r - d :: k, :, : min(d, w)] = -math.inf
+        z[:, r + d :: k, :, max(0, w - d) :] = -math.inf
+
+
+def kernel_softmax(logits: Tensor, *, in_image: bool = False) -> Tensor:
     """Softmax over dim 1 of ``(B, k*k, H, W)`` logits, in float32, finite for any input.
 
     NaN logits count as 0 and ±Inf as ±:data:`LOGIT_LIMIT`; huge finite logits are harmless
     (the maximum is subtracted first, so ``exp`` sees values <= 0 and the sum is >= 1). Without
     autograd the softmax runs in place on a float32 copy (half the memory traffic).
+
+    ``in_image=True``: the softmax is over the taps inside the ``H × W`` image only (the
+    others get weight 0; the centre tap is always inside, so every pixel's weights sum to 1).
     """
     with torch.autocast(logits.device.type, enabled=False):
         z = _f32(logits)
         if torch.is_grad_enabled() and z.requires_grad:
             z = torch.nan_to_num(z, nan=0.0, posinf=LOGIT_LIMIT, neginf=-LOGIT_LIMIT)
+            if in_image:
+                _mask_out_of_image(z)
             return torch.softmax(z, dim=1)
         z = z.clone() if z is logits else z
         z.nan_to_num_(nan=0.0, posinf=LOGIT_LIMIT, neginf=-LOGIT_LIMIT)
+        if in_image:
+            _mask_out_of_image(z)
         z.sub_(z.amax(dim=1, keepdim=True)).exp_()
         return z.div_(z.sum(dim=1, keepdim=True))
 
@@ -115,14 +147,15 @@ def apply_head(
     image = _f32(image)
     if strip is None or strip >= h:
         with torch.autocast(image.device.type, enabled=False):
-            return apply_kernels(image, kernel_softmax(head_logits(head, features)), normalize=True)
+            w = kernel_softmax(head_logits(head, features), in_image=True)
+            return apply_kernels(image, w, normalize=True)
     r = kernel_size // 2
     out = torch.empty_like(image)
     for y0 in range(0, h, strip):
         y1 = min(h, y0 + strip)
         # the strip's rows plus r rows of context each side (their own results are dropped)
         a, b = max(0, y0 - r), min(h, y1 + r)
-        w = kernel_softmax(head_logits(head, features[..., a:b, :]))
+        w = kernel_softmax(head_logits(head, features[..., a:b, :]), in_image=True)
         with torch.autocast(image.device.type, enabled=False):
             res = apply_kernels(image[..., a:b, :], w, normalize=True)
         out[..., y0:y1, :] = res[..., y0 - a : y1 - a, :]

@@ -91,6 +91,47 @@ def test_softmax_is_float32_under_autocast(dtype: torch.dtype) -> None:
         torch.testing.assert_close(w.detach(), kernel_softmax(z.float()), atol=1e-7, rtol=1e-6)
 
 
+def test_in_image_softmax_is_the_softmax_renormalised_over_the_in_image_taps() -> None:
+    k, h, w = 5, 6, 7
+    r = k // 2
+    z = torch.randn(2, k * k, h, w, generator=torch.Generator().manual_seed(3)) * 3
+    inside = torch.zeros(1, k * k, h, w, dtype=torch.bool)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            ys, xs = torch.arange(h)[:, None] + dy, torch.arange(w)[None, :] + dx
+            inside[0, (dy + r) * k + dx + r] = (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
+    full = torch.softmax(z, 1) * inside
+    want = full / full.sum(1, keepdim=True)
+    for grad in (False, True):
+        got = kernel_softmax(z.clone().requires_grad_(grad), in_image=True).detach()
+        torch.testing.assert_close(got, want, atol=1e-7, rtol=1e-6)
+        assert bool((got[~inside.expand_as(got)] == 0).all())  # exactly 0 outside the image
+        _check_kernels(got)
+
+
+def test_border_kernels_pointing_out_of_the_image_keep_gradients_finite() -> None:
+    """A border pixel whose kernel puts ~all its mass outside the image: renormalising by an
+    in-image mass of ~1e-37 overflowed the backward pass (NaN gradients made 1 training step
+    in 6 non-finite); the in-image softmax keeps it finite, also where the loss ignores the
+    pixel (a zero upstream gradient must not become 0 * inf)."""
+    k, h, w = 5, 8, 8
+    # demodulated irradiance of a bright light: values ~1e4
+    image = torch.rand(1, 3, h, w, generator=torch.Generator().manual_seed(0)) * 1e4
+    feats = torch.ones(1, 1, h, w)
+    head = nn.Conv2d(1, k * k, 1)
+    with torch.no_grad():
+        head.weight.zero_()
+        head.bias.zero_()
+        head.bias[0] = 86.0  # the (-2, -2) tap: outside the image in the top rows and columns
+    out = apply_head(image, feats, head, k)
+    mask = torch.zeros_like(out)
+    mask[..., 2:-2, 2:-2] = 1  # the loss sees the centre only, as on training crops
+    ((out - image) * mask).square().sum().backward()
+    assert bool(torch.isfinite(out).all())
+    assert all(bool(torch.isfinite(p.grad).all()) for p in head.parameters())
+    assert float(head.bias.grad.abs().sum()) > 0
+
+
 # --- head_logits / apply_head -------------------------------------------------------------
 
 
