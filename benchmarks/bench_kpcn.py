@@ -15,8 +15,8 @@ denoises with:
 * ``oidn`` (pyoidn, HDR, with albedo and normal) on the render and ``oidn-basic`` on the
   Mitsuba copy (same buffers: the two must agree, which is printed);
 * ``kalantari-xbf`` (learned cross-bilateral filter, shipped weights unless ``--xbf-model``);
-* ``nlm-basic``: NLM on the Mitsuba copies (what ``auto`` picks for such files while kpcn
-  ranks below it);
+* ``nlm-basic``: NLM on the Mitsuba copies (the method kpcn must beat to be the default for
+  such files; the ranking in :mod:`mcdenoise.methods` rests on the kpcn-basic / nlm-basic row);
 
 and measures relMSE (linear HDR, ε = 0.01), SSIM (sRGB clamped to [0, 1]) and HDR-FLIP with
 :mod:`mcdenoise.eval.metrics`. It prints per level the geometric mean (relMSE) and means (SSIM,
@@ -484,7 +484,7 @@ def run(args: argparse.Namespace, tmp: Path, with_flip: bool) -> int:
         ("oidn", False, "oidn", {}, with_flip),
         ("oidn-basic", True, "oidn", {}, with_flip),
         ("kalantari-xbf", False, "kalantari-xbf", {"model": args.xbf_model}, with_flip),
-        # the default method for such files until kpcn beats it (mcdenoise/methods.py)
+        # the next method for such files after kpcn (mcdenoise/methods.py)
         ("nlm-basic", True, "nlm", {}, with_flip),
     ]
     for m in ablations:

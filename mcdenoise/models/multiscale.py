@@ -9,7 +9,7 @@ A kernel-predicting network outputs, per pixel and per scale ``s`` (full, 1/2, 1
    With ``in_image=True`` the softmax runs over each pixel's *in-image* taps only (taps that
    fall outside the image get weight exactly 0). That is the same function as a softmax over
    all taps renormalised over the in-image ones, but its gradient stays finite: renormalising
-   by an in-image mass of 1e-30 (a border pixel whose kernel points out of the image) divides
+   by an in-image mass near 1e-38 (a border pixel whose kernel points out of the image) divides
    by its square in the backward pass, which underflows to 0 and made 1 training step in 6
    non-finite before this was changed.
 2. :func:`apply_head`: runs a 1×1 head (features -> logits), the softmax and
