@@ -58,7 +58,8 @@ import click
     "base",
     default=None,
     metavar="RUN",
-    help="kpcn: run folder or model file whose trunk --finetune-encoder keeps.",
+    help="kpcn: run folder or model file to start from: --finetune-encoder keeps its trunk "
+    "frozen; alone, the whole model trains further with this run's schedule.",
 )
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def train(model, data, out, config_file, overrides, steps, resume, finetune_encoder, base, quiet):

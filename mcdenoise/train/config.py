@@ -87,7 +87,9 @@ class TrainConfig:
             the low precision, the kernel softmax, kernel application and loss in float32.
         finetune_encoder: train only the encoder of this source against a frozen trunk
             (Vogels 2018); needs ``base``.
-        base: run folder or model file to start from (``finetune_encoder``).
+        base: run folder or model file to start from: with ``finetune_encoder``, its trunk
+            is kept frozen; alone (kpcn), the whole model is trained further with this
+            run's schedule (its architecture must match the config's).
         guides: guide features the model uses (and will require at inference); images of
             the data set without one of them are skipped and reported.
         checkpoints_kept: how many checkpoints to keep in ``checkpoints/`` (the newest ones).
@@ -169,6 +171,10 @@ class TrainConfig:
             (
                 not self.finetune_encoder or bool(self.base),
                 "finetune_encoder needs base (the run folder whose trunk is kept)",
+            ),
+            (
+                not self.base or self.model == "kpcn",
+                f"base (--from) is for kpcn models only, not {self.model}",
             ),
         ]
         for ok, message in checks:

@@ -17,6 +17,11 @@ sources.
 Fine-tuning (``finetune_encoder = SOURCE``, ``base = RUN``, Vogels 2018): the model of ``base``
 is loaded, an encoder for ``SOURCE`` is added (or reset) with statistics from this data set,
 and only that encoder is trained; the trunk and the other encoders stay frozen.
+
+Continued training (``base = RUN`` alone): every weight of the base model, and its
+normalisation statistics, are the starting point, and the whole model is trained with this
+run's schedule (a warm restart, or fine-tuning on a user's own renders). The architecture is
+the base's; a config that asks for a different one is refused, naming the difference.
 """
 
 from __future__ import annotations
@@ -173,6 +178,28 @@ def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
     return model
 
 
+def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
+    """The model of ``cfg.base``, all of it trainable, after checking it matches ``cfg``."""
+    base = KpcnModel.load(cfg.base)
+    card = base.card
+    wanted = {
+        "kernel": (cfg.kernel or card.kernel, card.kernel),
+        "channels": (list(cfg.channels), list(card.channels)),
+        "scales": (cfg.scales, card.scales),
+        "encoder": (cfg.encoder, card.encoder),
+    }
+    diff = [f"{k} {want} (base: {have})" for k, (want, have) in wanted.items() if want != have]
+    missing = [s for s in sources if s not in card.sources]
+    if missing:
+        diff.append(f"sources {missing} (base has {card.sources}; use --finetune-encoder)")
+    if diff:
+        raise InputError(f"{cfg.base}: the config asks for a different model: {'; '.join(diff)}")
+    card.training = {"base": str(cfg.base), "base_training": card.training}
+    for p in base.parameters():
+        p.requires_grad_(True)
+    return base
+
+
 def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchSampler, LoadReport]:
     """Scan, split, load and prepare the data, compute statistics, make (or load) the model.
 
@@ -195,6 +222,9 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
     if cfg.finetune_encoder:
         model = _finetune_model(cfg, train_items)
         trained = [cfg.finetune_encoder]
+    elif cfg.base:
+        model = _continued_model(cfg, sources)
+        trained = sources
     else:
         stats = {s: source_stats(train_items, s) for s in sources}
         model = new_model(

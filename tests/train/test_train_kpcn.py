@@ -17,6 +17,7 @@ from click.testing import CliRunner
 from mcdenoise_cli.main import main
 
 import mcdenoise.train.kpcn as train_kpcn_module
+from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import l1
 from mcdenoise.models.encoders import COLOR_TENSORS
@@ -217,6 +218,45 @@ def test_finetune_encoder_trains_only_that_encoder(
     b = load_buffers(tiny_dataset / "materials.exr", part="spp16")
     assert bool(torch.isfinite(tuned.denoise(b.subset(["color"]))).all())
     assert torch.equal(tuned.denoise(b, source="basic"), base.denoise(b, source="basic"))
+
+
+def test_continued_training_starts_from_every_base_weight(
+    base_run: Path, tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    start: dict[str, torch.Tensor] = {}
+    real = train_kpcn_module._continued_model
+
+    def spy(c, sources):
+        model = real(c, sources)
+        start.update({k: v.detach().clone() for k, v in model.state_dict().items()})
+        return model
+
+    monkeypatch.setattr(train_kpcn_module, "_continued_model", spy)
+    out = tmp_path / "more"
+    train_kpcn(cfg(tiny_dataset, base=base_run, lr=1e-2), out, progress=False)
+    base = KpcnModel.load(base_run)
+    more = KpcnModel.load(out)
+    old = base.state_dict()
+    assert set(start) == set(old)
+    for k, v in old.items():
+        assert torch.equal(start[k], v), k  # it started from the base, not a fresh init
+    new = more.state_dict()
+    # every part trained: trunk, heads and both encoders moved
+    for prefix in ("encoders.full.", "encoders.basic.", "down.", "up.", "heads.", "alphas."):
+        keys = [k for k in new if k.startswith(prefix) and new[k].is_floating_point()]
+        assert keys and any(not torch.equal(new[k], old[k]) for k in keys), prefix
+    assert more.card.training["base"] == str(base_run)
+    assert more.card.stats["full"].names == base.card.stats["full"].names
+    assert more.card.stats["full"].mean == base.card.stats["full"].mean
+
+
+def test_continued_training_refuses_another_architecture(
+    base_run: Path, tiny_dataset: Path, tmp_path: Path
+) -> None:
+    with pytest.raises(InputError, match=r"kernel 7 \(base: 5\)"):
+        build(cfg(tiny_dataset, base=base_run, kernel=7))
+    with pytest.raises(InputError, match="kpcn models only"):
+        cfg(tiny_dataset, base=base_run, model="kalantari-xbf")
 
 
 # --- (e) augmentation ------------------------------------------------------------------------
