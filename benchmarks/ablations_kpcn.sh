@@ -3,9 +3,11 @@
 # Every run: the shipped model's recipe (data/recipes/kpcn.md: k = KERNEL, 3 scales,
 # source-aware encoders, SMAPE) with ONE change, trained for STEPS steps. Defaults reproduce the
 # README's 8000-step table (k = 5 base; ~27 min per k = 5 run on 1 thread, two runs side by side
-# with THREADS=1); KERNEL=11 STEPS=1200 gives the older 1200-step table (made before the
-# in-image softmax fix). Keep the 200 warm-up steps: at lr 1e-3 without warm-up the U-Net's
-# activations explode and the softmax kernels saturate (the CLI warns when a run collapses).
+# with THREADS=1; k = 21 is the exception: about 6 s per step on 1 thread, some 13 hours
+# for 8000 steps, so it has no row yet); KERNEL=11 STEPS=1200 gives the older 1200-step
+# table (made before the in-image softmax fix). Keep the 200 warm-up steps: at lr 1e-3
+# without warm-up the U-Net's activations explode and the softmax kernels saturate (the CLI
+# warns when a run collapses).
 # Run folders go to runs/abl-*; then:
 #   python benchmarks/bench_kpcn.py --ablation base=runs/abl-base --ablation k11=runs/abl-k11 ...
 set -e
