@@ -163,18 +163,24 @@ def test_resume_after_a_kill_gives_identical_weights(
 # --- (d) fine-tuning a new encoder ------------------------------------------------------------
 
 
+def _record_start(monkeypatch: pytest.MonkeyPatch, builder: str) -> dict[str, torch.Tensor]:
+    """Wrap ``train.kpcn.<builder>`` so the returned dict receives the model's starting weights."""
+    start: dict[str, torch.Tensor] = {}
+    real = getattr(train_kpcn_module, builder)
+
+    def spy(*args):
+        model = real(*args)
+        start.update({k: v.detach().clone() for k, v in model.state_dict().items()})
+        return model
+
+    monkeypatch.setattr(train_kpcn_module, builder, spy)
+    return start
+
+
 def test_finetune_encoder_trains_only_that_encoder(
     base_run: Path, tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    fresh: dict[str, torch.Tensor] = {}
-    real = train_kpcn_module._finetune_model
-
-    def spy(c, items):
-        model = real(c, items)
-        fresh.update({k: v.detach().clone() for k, v in model.state_dict().items()})
-        return model
-
-    monkeypatch.setattr(train_kpcn_module, "_finetune_model", spy)
+    fresh = _record_start(monkeypatch, "_finetune_model")
     out = tmp_path / "color"
     r = CliRunner().invoke(
         main,
@@ -223,15 +229,7 @@ def test_finetune_encoder_trains_only_that_encoder(
 def test_continued_training_starts_from_every_base_weight(
     base_run: Path, tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    start: dict[str, torch.Tensor] = {}
-    real = train_kpcn_module._continued_model
-
-    def spy(c, sources):
-        model = real(c, sources)
-        start.update({k: v.detach().clone() for k, v in model.state_dict().items()})
-        return model
-
-    monkeypatch.setattr(train_kpcn_module, "_continued_model", spy)
+    start = _record_start(monkeypatch, "_continued_model")
     out = tmp_path / "more"
     train_kpcn(cfg(tiny_dataset, base=base_run, lr=1e-2), out, progress=False)
     base = KpcnModel.load(base_run)
