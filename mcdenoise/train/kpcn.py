@@ -179,7 +179,7 @@ def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
 
 
 def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
-    """The model of ``cfg.base``, all of it trainable, after checking it matches ``cfg``."""
+    """The model of ``cfg.base`` (every weight trained further), after checking it matches ``cfg``."""
     base = KpcnModel.load(cfg.base)
     card = base.card
     wanted = {
@@ -195,9 +195,7 @@ def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
     if diff:
         raise InputError(f"{cfg.base}: the config asks for a different model: {'; '.join(diff)}")
     card.training = {"base": str(cfg.base), "base_training": card.training}
-    for p in base.parameters():
-        p.requires_grad_(True)
-    return base
+    return base  # loaded with every parameter trainable
 
 
 def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchSampler, LoadReport]:
