@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -155,8 +156,13 @@ class EvalResult:
         shown = [m for m in self.metrics if any(r.metrics.get(m) is not None for r in self.records)]
         head = ["scene", "method", "spp", *(METRICS[m].label for m in shown), "vs noisy", "status"]
         rows = [head]
-        for r in self.records:
-            cells = [r.scene, r.method, "" if r.spp is None else str(r.spp)]
+        # two outputs of one method (e.g. two trained models) are told apart by their file
+        seen = [(r.scene, r.method, r.spp) for r in self.records]
+        for r, key in zip(self.records, seen):
+            name = r.method
+            if seen.count(key) > 1:
+                name += f" [{Path(r.file).name}]"
+            cells = [r.scene, name, "" if r.spp is None else str(r.spp)]
             cells += [_short(r.metrics.get(m)) for m in shown]
             cells.append("" if r.relmse_ratio is None else f"{r.relmse_ratio:.3g}x")
             cells.append(f"FAILED: {r.reason}" if r.failed else "ok")

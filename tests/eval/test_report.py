@@ -307,6 +307,21 @@ def test_format_table_lists_every_record(result_and_arrays):
     assert "inf" in next(line for line in lines if "perfect" in line)
 
 
+def test_format_table_tells_two_outputs_of_one_method_apart():
+    ref, noisy, outputs = scene_images(8, 8)
+    info = {
+        "runs/a/out.exr": {"method": "kpcn", "spp": 4},
+        "runs/b/out2.exr": {"method": "kpcn", "spp": 4},
+        "other.exr": {"method": "nlm", "spp": 4},
+    }
+    images = {"runs/a/out.exr": outputs["good"], "runs/b/out2.exr": outputs["blurry"]}
+    images["other.exr"] = outputs["good"]
+    lines = evaluate_arrays(ref, images, noisy=noisy, info=info).format_table().splitlines()
+    assert any("kpcn [out.exr]" in line for line in lines)
+    assert any("kpcn [out2.exr]" in line for line in lines)
+    assert any(" nlm " in line and "[" not in line for line in lines)
+
+
 def test_empty_result_still_writes_a_valid_report(tmp_path):
     result = EvalResult(metrics=["relmse"], version="0", created="now")
     result.records.append(EvalRecord(scene="s", file="f", metrics={"relmse": None}))
