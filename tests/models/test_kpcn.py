@@ -18,6 +18,7 @@ from mcdenoise.models.encoders import (
     channel_names,
     choose_source,
     prepare_tensors,
+    shared_layout,
     source_channels,
 )
 from mcdenoise.models.features import FeatureStats
@@ -368,3 +369,18 @@ def test_shared_encoder_runs_for_every_source(cornell, stats) -> None:
     with torch.no_grad():
         out = m(_batch(cornell, [0, 1, 2]))
     assert out.shape == (3, 3, 16, 16) and bool(torch.isfinite(out).all())
+
+
+@pytest.mark.parametrize("source", ["basic", "color"])
+def test_shared_layout_keeps_channels_last(source) -> None:
+    # the encoder hands channels-last tensors on (1.3-1.8x faster convolutions on CPU); the
+    # zero-filled full layout must keep that format, and hold the source's channels unchanged
+    full = channel_names("full")
+    index = [full.index(n) for n in channel_names(source)]
+    z = torch.randn(2, len(index), 8, 6).contiguous(memory_format=torch.channels_last)
+    out = shared_layout(z, source)
+    assert out.shape == (2, len(full), 8, 6)
+    assert out.is_contiguous(memory_format=torch.channels_last)
+    assert torch.equal(out[:, index], z)
+    rest = [i for i in range(len(full)) if i not in index]
+    assert bool((out[:, rest] == 0).all())
