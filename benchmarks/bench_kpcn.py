@@ -20,7 +20,8 @@ denoises with:
 
 and measures relMSE (linear HDR, ε = 0.01), SSIM (sRGB clamped to [0, 1]) and HDR-FLIP with
 :mod:`mcdenoise.eval.metrics`. It prints per level the geometric mean (relMSE) and means (SSIM,
-FLIP) per method, the median seconds per megapixel of each method (method time only, after one
+FLIP) per method, the three images per level where kpcn loses most to OIDN (a geometric mean
+hides one broken image), the median seconds per megapixel of each method (method time only, after one
 warm-up call; at 128×128 these are dominated by overheads, ``--speed`` is the real figure), and
 a table of the issue's targets with per-image win counts and PASS/FAIL:
 
@@ -279,6 +280,22 @@ def ratio(a: Sequence[float], b: Sequence[float]) -> tuple[float, int]:
     return geometric_mean([x / y for x, y in zip(a, b, strict=True)]), sum(
         x < y for x, y in zip(a, b, strict=True)
     )
+
+
+def worst_images(runs: Runs, items: Sequence[Any], spps: Sequence[int], out: dict, n: int = 3):
+    """Print and record the ``n`` images per level where kpcn loses most to OIDN: a geometric
+    mean hides a single broken image (e.g. a light bled into its dark surroundings)."""
+    print(f"\nworst {n} images per level: kpcn / oidn relMSE (kpcn, oidn)")
+    out["worst"] = {}
+    for s in spps:
+        names = [it.entry.image for it in items if it.spp == s]
+        pairs = zip(names, runs.relmse[(s, "kpcn")], runs.relmse[(s, "oidn")], strict=True)
+        rows = sorted(((k / max(o, 1e-12), name, k, o) for name, k, o in pairs), reverse=True)
+        out["worst"][str(s)] = [
+            {"image": name, "kpcn": k, "oidn": o, "ratio": r} for r, name, k, o in rows[:n]
+        ]
+        cells = [f"{name} {r:.2f}x ({fmt(k)}, {fmt(o)})" for r, name, k, o in rows[:n]]
+        print(f"  {s:>3} spp: " + "; ".join(cells))
 
 
 def tiled(b: FeatureBuffers, height: int, width: int) -> FeatureBuffers:
@@ -547,6 +564,7 @@ def run(args: argparse.Namespace, tmp: Path, with_flip: bool) -> int:
             )
     if runs.flip_missing:
         print(f"(FLIP unavailable for {runs.flip_missing} image(s): their level shows '-')")
+    worst_images(runs, items, spps, out)
     print("\nmedian method seconds per megapixel (128x128 inputs; overhead-dominated):")
     out["s_per_mp"] = {k: statistics.median(v) for k, v in runs.s_per_mp.items()}
     print("  " + ", ".join(f"{k} {out['s_per_mp'][k]:.2f}" for k in labels[1:]))
