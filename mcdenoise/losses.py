@@ -8,6 +8,9 @@ They are computed in float32 (or float64 if the inputs are) even under autocast.
 * ``smape``: ``|d - r| / (|d| + |r| + 0.01)`` (Vogels et al. 2018; OIDN's training uses the
   same ε). Scale-invariant and bounded by 1, so one bright firefly cannot dominate a batch.
 * ``relmse``: ``(d - r)² / (r² + 0.01)`` (the evaluation metric of this package).
+* ``smape+relmse``: their sum. SMAPE alone lets a network keep a rare isolated firefly (its
+  cost is bounded by 1 per pixel); the relMSE term makes it expensive, while SMAPE keeps the
+  bright, textured regions weighted (relMSE alone favours the dark ones).
 * ``l1``: ``|d - r|``.
 * ``asymmetric``: Vogels 2018, eq. 9: ``smape · (1 + (λ - 1) · H((d - r)(r - x)))`` with ``x``
   the noisy input and ``H`` the Heaviside step: a result on the *far side* of the reference from
@@ -58,6 +61,11 @@ def relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Ten
         return _masked_mean((d - r).square() / (r.square() + RELMSE_EPS), mask)
 
 
+def smape_relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
+    """SMAPE + relMSE over the masked pixels (scalar)."""
+    return smape(output, reference, mask) + relmse(output, reference, mask)
+
+
 def l1(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
     """Mean absolute error over the masked pixels (scalar)."""
     with torch.autocast(output.device.type, enabled=False):
@@ -90,6 +98,7 @@ LossFn = Callable[..., Tensor]
 LOSSES: dict[str, LossFn] = {
     "smape": smape,
     "relmse": relmse,
+    "smape+relmse": smape_relmse,
     "l1": l1,
     "asymmetric": asymmetric,
 }

@@ -15,6 +15,7 @@ from mcdenoise.losses import (
     relmse,
     smape,
     smape_map,
+    smape_relmse,
 )
 
 
@@ -61,6 +62,19 @@ def test_compute_loss_dispatches_by_name() -> None:
         compute_loss("l3", d, r)
     with pytest.raises(ValueError, match="slope"):
         asymmetric(d, r, x, slope=0.5)
+
+
+def test_smape_relmse_is_the_sum_and_makes_a_kept_firefly_expensive() -> None:
+    g = torch.Generator().manual_seed(3)
+    d, r = torch.rand(2, 3, 4, 4, generator=g), torch.rand(2, 3, 4, 4, generator=g)
+    assert torch.allclose(compute_loss("smape+relmse", d, r), smape(d, r) + relmse(d, r))
+    # one kept firefly among 64 pixels (12.7 where the reference is 0.17: caustics_glass at 64
+    # spp): SMAPE charges it < 1/64, the sum (12.53² / (0.17² + 0.01) ≈ 4036) / 64
+    ref = torch.full((1, 3, 8, 8), 0.17)
+    out = ref.clone()
+    out[..., 3, 4] = 12.7
+    assert float(smape(out, ref)) < 1 / 64
+    assert float(smape_relmse(out, ref)) > 4000 / 64
 
 
 # --- SMAPE bounds ----------------------------------------------------------------------------

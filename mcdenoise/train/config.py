@@ -26,7 +26,7 @@ from typing import Any, get_type_hints
 from mcdenoise.errors import InputError
 
 #: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`).
-LOSSES = ("relmse", "log-relmse", "smape", "l1", "asymmetric")
+LOSSES = ("relmse", "log-relmse", "smape", "smape+relmse", "l1", "asymmetric")
 #: Default loss per model family (prefix of the model name).
 DEFAULT_LOSS = {"kalantari": "log-relmse", "kpcn": "smape"}
 #: Mixed-precision modes (``amp``); autocast is only used on CUDA devices.
@@ -69,7 +69,7 @@ class TrainConfig:
         loss: ``relmse`` (mean over the batch's pixels), ``log-relmse`` (mean over crops of
             ``log(relMSE of the crop)``: every crop counts alike whatever its error level, as
             in a geometric mean over images; plain relMSE is dominated by the noisiest crops),
-            ``smape``, ``l1`` or ``asymmetric`` (Vogels 2018, slope ``asym_slope`` on SMAPE);
+            ``smape``, ``smape+relmse`` (their sum), ``l1`` or ``asymmetric`` (Vogels 2018, slope ``asym_slope`` on SMAPE);
             see :mod:`mcdenoise.losses`. Empty: the model's default (Kalantari: log-relmse,
             KPCN: smape); the resolved config holds the value used.
         asym_slope: λ of the asymmetric loss (1 = plain SMAPE; > 1 penalises results on the
