@@ -69,9 +69,10 @@ class TrainConfig:
         loss: ``relmse`` (mean over the batch's pixels), ``log-relmse`` (mean over crops of
             ``log(relMSE of the crop)``: every crop counts alike whatever its error level, as
             in a geometric mean over images; plain relMSE is dominated by the noisiest crops),
-            ``smape``, ``smape+relmse`` (their sum), ``l1`` or ``asymmetric`` (Vogels 2018, slope ``asym_slope`` on SMAPE);
-            see :mod:`mcdenoise.losses`. Empty: the model's default (Kalantari: log-relmse,
-            KPCN: smape); the resolved config holds the value used.
+            ``smape``, ``smape+relmse`` (their sum), ``l1`` or ``asymmetric`` (Vogels 2018,
+            slope ``asym_slope`` on SMAPE); see :mod:`mcdenoise.losses`. Empty: the model's
+            default (Kalantari: log-relmse, KPCN: smape); the resolved config holds the value
+            used.
         asym_slope: λ of the asymmetric loss (1 = plain SMAPE; > 1 penalises results on the
             far side of the reference from the noisy input, keeping more detail).
         channels: KPCN U-Net widths per level (full, 1/2, 1/4, ...; at least 2 levels).
