@@ -21,9 +21,9 @@ denoises with:
 and measures relMSE (linear HDR, ε = 0.01), SSIM (sRGB clamped to [0, 1]) and HDR-FLIP with
 :mod:`mcdenoise.eval.metrics`. It prints per level the geometric mean (relMSE) and means (SSIM,
 FLIP) per method, the three images per level where kpcn loses most to OIDN (a geometric mean
-hides one broken image), the median seconds per megapixel of each method (method time only, after one
-warm-up call; at 128×128 these are dominated by overheads, ``--speed`` is the real figure), and
-a table of the issue's targets with per-image win counts and PASS/FAIL:
+hides one broken image), the median seconds per megapixel of each method (method time only,
+after one warm-up call; at 128×128 these are dominated by overheads, ``--speed`` is the real
+figure), and a table of the issue's targets with per-image win counts and PASS/FAIL:
 
 * relMSE geometric-mean ratio kpcn / oidn <= 1.2 at 4 spp, <= 1.0 at 16 and 64 spp;
 * kpcn / kalantari-xbf <= 0.5; mean SSIM of kpcn >= OIDN's - 0.01;

@@ -13,6 +13,7 @@ reference is the main source of ``"inf"``.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -157,10 +158,10 @@ class EvalResult:
         head = ["scene", "method", "spp", *(METRICS[m].label for m in shown), "vs noisy", "status"]
         rows = [head]
         # two outputs of one method (e.g. two trained models) are told apart by their file
-        seen = [(r.scene, r.method, r.spp) for r in self.records]
-        for r, key in zip(self.records, seen):
+        shared = Counter((r.scene, r.method, r.spp) for r in self.records)
+        for r in self.records:
             name = r.method
-            if seen.count(key) > 1:
+            if shared[(r.scene, r.method, r.spp)] > 1:
                 name += f" [{Path(r.file).name}]"
             cells = [r.scene, name, "" if r.spp is None else str(r.spp)]
             cells += [_short(r.metrics.get(m)) for m in shown]

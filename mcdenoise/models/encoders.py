@@ -198,8 +198,8 @@ def shared_layout(z: Tensor, source: str) -> Tensor:
     index = [full.index(n) for n in channel_names(source)]
     # keep the caller's memory format: a plain new_zeros would turn a channels-last input into
     # NCHW and every convolution after it would run 1.3-1.8x slower on CPU
-    channels_last = z.dim() == 4 and z.is_contiguous(memory_format=torch.channels_last)
-    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    last = z.is_contiguous(memory_format=torch.channels_last)
+    fmt = torch.channels_last if last else torch.contiguous_format
     shape = (z.shape[0], len(full), *z.shape[2:])
     out = torch.empty(shape, dtype=z.dtype, device=z.device, memory_format=fmt).zero_()
     out[:, index] = z

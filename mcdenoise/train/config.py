@@ -24,9 +24,12 @@ from pathlib import Path
 from typing import Any, get_type_hints
 
 from mcdenoise.errors import InputError
+from mcdenoise.losses import LOSSES as LOSS_FUNCTIONS
 
-#: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`).
-LOSSES = ("relmse", "log-relmse", "smape", "smape+relmse", "l1", "asymmetric")
+#: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`):
+#: those of :mod:`mcdenoise.losses`, and ``log-relmse``, which the Kalantari trainer computes
+#: per crop itself.
+LOSSES = ("log-relmse", *LOSS_FUNCTIONS)
 #: Default loss per model family (prefix of the model name).
 DEFAULT_LOSS = {"kalantari": "log-relmse", "kpcn": "smape"}
 #: Mixed-precision modes (``amp``); autocast is only used on CUDA devices.

@@ -179,7 +179,7 @@ def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
 
 
 def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
-    """The model of ``cfg.base`` (every weight trained further), after checking it matches ``cfg``."""
+    """The model of ``cfg.base`` (every weight trained further), checked against ``cfg``."""
     base = KpcnModel.load(cfg.base)
     card = base.card
     wanted = {
