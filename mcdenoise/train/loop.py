@@ -244,7 +244,13 @@ def train(
     device = resolve_device(cfg.device, env)
     ctx = init_from_env(device) if dist_ctx is None else dist_ctx
     try:
-        return _train(cfg, task, sampler, run, ctx, device, resume=resume, progress=progress)
+        result = _train(cfg, task, sampler, run, ctx, device, resume=resume, progress=progress)
+        if dist_ctx is None:
+            # every rank is done before the group goes away: a rank that tears gloo down
+            # while another still talks to it can abort ("terminate called without an
+            # active exception"). Only on success: after an error a barrier could hang.
+            barrier(ctx)
+        return result
     finally:
         task.forward_module = task.module
         if dist_ctx is None:
