@@ -32,22 +32,6 @@ mean absolute deviation of the primary ones over small blocks, and the sample co
 ``spp``                    ``log2(spp)`` (the training mean when the input does not say)
 =========================  ============================================================
 
-Prefilter features (an extension of the paper, ``prefiltered=True``): every statistic above
-is taken on the *noisy* colour, so at 4 spp a local standard deviation cannot tell real detail
-from noise. A cheap 7×7 cross-bilateral filter with the fixed defaults (:data:`PRE_KERNEL`) is
-run first and described by:
-
-=========================  ============================================================
-``pre.lum``                ``log1p`` of the prefiltered luminance
-``pre.lum.std.w``          its local standard deviation (w = 3, 7): detail, not noise
-``pre.lum.grad``           its gradient magnitude
-``pre.relvar``             ``log`` of the colour's variance of the mean relative to the
-                           prefiltered luminance (a stabler noise level than ``color.relvar``)
-``pre.chi2.w``             ``log`` of the mean over ``w × w`` (w = 1, 3, 7) of
-                           ``(noisy - prefiltered)² / variance``: about 1 where the prefilter
-                           only removed noise, far above 1 where it blurred real structure
-=========================  ============================================================
-
 The ordered names depend only on which guides are present (:func:`feature_names`); a model
 stores them and refuses inputs whose names differ (:func:`check_feature_names`).
 Normalisation (per-feature mean and standard deviation over the training pixels,
@@ -66,14 +50,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from mcdenoise.errors import InputError
-from mcdenoise.filters.cross_bilateral import cross_bilateral
-from mcdenoise.filters.prepare import (
-    GUIDE_FEATURES,
-    FilterInputs,
-    XbfSettings,
-    box_mean,
-    feature_bandwidths,
-)
+from mcdenoise.filters.prepare import GUIDE_FEATURES, FilterInputs, box_mean
 
 #: Window edges of the local statistics.
 WINDOWS: tuple[int, ...] = (3, 7, 21)
@@ -86,28 +63,10 @@ GUIDE_CHANNELS: dict[str, tuple[str, ...]] = {
 }
 #: Normalised features are clamped to ``±CLAMP``.
 CLAMP = 8.0
-#: Kernel edge of the cheap cross-bilateral prefilter of the ``pre.*`` features.
-PRE_KERNEL = 7
-#: Names of the prefilter features (appended before ``spp`` when a model uses them).
-PRE_NAMES: tuple[str, ...] = (
-    "pre.lum",
-    "pre.lum.std.3",
-    "pre.lum.std.7",
-    "pre.lum.grad",
-    "pre.relvar",
-    "pre.chi2.1",
-    "pre.chi2.3",
-    "pre.chi2.7",
-)
 
 
-def feature_names(
-    guides: Sequence[str], with_guide_vars: Sequence[str] = (), prefiltered: bool = False
-) -> list[str]:
-    """The ordered feature names for inputs with ``guides`` (and variances of ``with_guide_vars``).
-
-    ``prefiltered``: with the :data:`PRE_NAMES` features of a cheap prefilter.
-    """
+def feature_names(guides: Sequence[str], with_guide_vars: Sequence[str] = ()) -> list[str]:
+    """The ordered feature names for inputs with ``guides`` (and variances of ``with_guide_vars``)."""
     guides = [g for g in GUIDE_FEATURES if g in guides]
     names = ["screen.x", "screen.y", "color.r", "color.g", "color.b"]
     for g in guides:
@@ -118,8 +77,6 @@ def feature_names(
     names += ["lum.grad"] + [f"{g}.grad" for g in guides]
     names += ["lum.mad", "color.relvar"]
     names += [f"{g}.var" for g in guides if g in with_guide_vars]
-    if prefiltered:
-        names += list(PRE_NAMES)
     names += ["spp"]
     return names
 
@@ -183,40 +140,8 @@ def _mad3(x: Tensor) -> Tensor:
     return torch.stack(dev).mean(0).mean(1, keepdim=True)
 
 
-def prefilter_features(inp: FilterInputs, irradiance: Tensor, irradiance_var: Tensor) -> Tensor:
-    """The :data:`PRE_NAMES` features ``(1, 8, H, W)`` (see the module docstring)."""
-    s = XbfSettings(kernel_size=PRE_KERNEL)
-    guides = [g for g in GUIDE_FEATURES if g in inp.features]
-    sig, floors = feature_bandwidths(s, guides, list(inp.feature_vars))
-    with torch.no_grad():
-        pre = cross_bilateral(
-            irradiance,
-            {g: inp.features[g] for g in guides} or None,
-            kernel_size=s.kernel_size,
-            sigma_spatial=s.sigma_spatial,
-            sigma_color=s.sigma_color,
-            sigma_features=sig,
-            color_var=irradiance_var,
-            var_pair="min",
-            feature_vars={g: inp.feature_vars.get(g) for g in guides},
-            feature_floor=floors,
-        )
-    lin = pre.clamp_min(0).mean(1, keepdim=True)
-    lum = torch.log1p(lin)
-    var = irradiance_var.mean(1, keepdim=True)
-    chi2 = (irradiance - pre).square().mean(1, keepdim=True) / (var + 1e-4 * lin.square() + 1e-12)
-    chans = [lum, _local_std(lum, 3), _local_std(lum, 7), _grad(lum)]
-    chans += [torch.log((var + 1e-12) / (lin.square() + 1e-4))]
-    chans += [torch.log(box_mean(chi2, w // 2) + 1e-3) for w in (1, 3, 7)]
-    return torch.cat(chans, dim=1)
-
-
 def compute_features(
-    inp: FilterInputs,
-    irradiance: Tensor,
-    irradiance_var: Tensor,
-    spp: float | None,
-    prefiltered: bool = False,
+    inp: FilterInputs, irradiance: Tensor, irradiance_var: Tensor, spp: float | None
 ) -> tuple[Tensor, list[str]]:
     """Raw (un-normalised) features ``(1, F, H, W)`` and their names.
 
@@ -226,7 +151,6 @@ def compute_features(
         irradiance_var: ``(1, 1, H, W)`` its variance of the mean.
         spp: samples per pixel, or ``None`` when unknown (the ``spp`` feature is then NaN and
             :meth:`FeatureStats.normalize` replaces it by the training mean).
-        prefiltered: add the features of a cheap prefilter (:func:`prefilter_features`).
     """
     _, _, h, w = irradiance.shape
     dt, dev = irradiance.dtype, irradiance.device
@@ -255,12 +179,10 @@ def compute_features(
     chans += [torch.log((irradiance_var + 1e-12) / (lum_lin.square() + 1e-4))]
     with_vars = [g for g in guides if g in inp.feature_vars]
     chans += [torch.log(inp.feature_vars[g].mean(1, keepdim=True) + 1e-6) for g in with_vars]
-    if prefiltered:
-        chans += [prefilter_features(inp, irradiance, irradiance_var)]
     s = math.log2(spp) if spp else math.nan
     chans += [torch.full_like(lum, s)]
     feats = torch.cat(chans, dim=1)
-    names = feature_names(guides, with_vars, prefiltered)
+    names = feature_names(guides, with_vars)
     if feats.shape[1] != len(names):  # a programming error, not an input error
         raise AssertionError(f"{feats.shape[1]} feature channels for {len(names)} names")
     return feats, names

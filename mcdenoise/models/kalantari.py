@@ -23,7 +23,7 @@ albedo demodulation), so the comparison with the fixed filter is like for like.
 Model file (``torch.save`` of a dict, read with ``weights_only=True``)::
 
     {"card": {format, kind, guides, guide_vars, features (FeatureStats dict), hidden,
-              outputs, bound, settings, training, prefiltered}, "state": state_dict}
+              outputs, bound, settings, training}, "state": state_dict}
 
 Loading checks the format version and that the features the code computes for the model's
 guide set are the ones stored (names and order); an input that lacks a guide the model was
@@ -100,9 +100,6 @@ class ModelCard:
         hidden: hidden layer sizes of the MLP.
         settings: the fixed-filter settings the offsets multiply (field -> value).
         training: free-form description of the training run (data, steps, metrics).
-        prefiltered: the features include those of a cheap prefilter
-            (:func:`~mcdenoise.models.features.prefilter_features`); ``False`` in files
-            written before they existed.
     """
 
     kind: str
@@ -114,7 +111,6 @@ class ModelCard:
     training: dict[str, Any] = field(default_factory=dict)
     bound: float = BOUND
     format: str = FORMAT
-    prefiltered: bool = False
 
     @property
     def outputs(self) -> list[str]:
@@ -150,7 +146,6 @@ class ModelCard:
                 settings=dict(d.get("settings", {})),
                 training=dict(d.get("training", {})),
                 bound=float(d.get("bound", BOUND)),
-                prefiltered=bool(d.get("prefiltered", False)),
             )
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"{what}: incomplete model card ({err})") from None
@@ -198,7 +193,7 @@ class KalantariModel(nn.Module):
         super().__init__()
         self.card = card
         self.settings = card.filter_settings()
-        expected = feature_names(card.guides, card.guide_vars, card.prefiltered)
+        expected = feature_names(card.guides, card.guide_vars)
         check_feature_names(card.features.names, expected, "model file", f"mcdenoise {__version__}")
         self.net = KalantariNet(len(expected), card.hidden, len(card.outputs), card.bound)
 
@@ -225,7 +220,6 @@ class KalantariModel(nn.Module):
             self.card.guides,
             reference,
             self.card.guide_vars,
-            self.card.prefiltered,
         )
         return item
 
@@ -360,13 +354,11 @@ def prepare_item(
     guides: Sequence[str],
     reference: Tensor | None = None,
     guide_vars: Sequence[str] | None = None,
-    prefiltered: bool = False,
 ) -> dict[str, Tensor]:
     """Filter inputs and raw features of one image, ``{name: (C, H, W)}``.
 
     ``guide_vars``: use the variances of these guides only (``None``: every one present), so
     an input with more buffers than a model was trained with is seen as the model expects.
-    ``prefiltered``: add the prefilter features (:func:`compute_features`).
 
     Keys: ``color`` (sanitised noisy colour), ``irr``/``irr_var`` (what the filter averages and
     its variance), ``factor`` (remodulation, ones without albedo), ``feat.<g>``/``fvar.<g>``
@@ -384,7 +376,7 @@ def prepare_item(
     if guide_vars is not None:
         inp.feature_vars = {g: v for g, v in inp.feature_vars.items() if g in guide_vars}
     irr, var, factor = _demodulate(inp, settings.demodulate, settings.albedo_eps)
-    feats, _ = compute_features(inp, irr, var, buffers.spp, prefiltered)
+    feats, _ = compute_features(inp, irr, var, buffers.spp)
     out = {
         "color": inp.color[0],
         "irr": irr[0],
@@ -408,7 +400,6 @@ def new_model(
     stats: FeatureStats,
     hidden: Sequence[int],
     settings: Mapping[str, Any] | None = None,
-    prefiltered: bool = False,
 ) -> KalantariModel:
     """An untrained model (= the fixed filter) for a guide set and feature statistics."""
     cls = settings_class(kind)
@@ -423,7 +414,6 @@ def new_model(
         stats,
         list(hidden),
         base,
-        prefiltered=prefiltered,
     )
     return KalantariModel(card)
 

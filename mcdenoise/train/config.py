@@ -67,9 +67,6 @@ class TrainConfig:
         hidden: hidden layer sizes of the model's MLP.
         kernel: filter window edge (odd; the cross-bilateral kernel or the NLM search window);
             0 = the filter's default (21).
-        prefeatures: Kalantari models: also give the MLP the features of a cheap 7×7
-            prefilter (:func:`~mcdenoise.models.features.prefilter_features`): local detail
-            and bias statistics that are not drowned in noise at low spp.
         passes: cross-bilateral passes (1 or 2; the second measures colour distances on the
             first pass's result and has its own learned spatial and colour bandwidths).
         loss: ``relmse`` (mean over the batch's pixels), ``log-relmse`` (mean over crops of
@@ -124,7 +121,6 @@ class TrainConfig:
     hidden: list[int] = field(default_factory=lambda: [32])
     kernel: int = 0
     passes: int = 1
-    prefeatures: bool = False
     loss: str = ""
     asym_slope: float = 2.0
     channels: list[int] = field(default_factory=lambda: [24, 32, 48, 64])

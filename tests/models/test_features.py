@@ -8,16 +8,14 @@ import pytest
 import torch
 
 from mcdenoise.errors import InputError
-from mcdenoise.filters.prepare import FilterInputs, _demodulate, prepare_inputs
+from mcdenoise.filters.prepare import _demodulate, prepare_inputs
 from mcdenoise.io import load_buffers
 from mcdenoise.models.features import (
     CLAMP,
-    PRE_NAMES,
     FeatureStats,
     check_feature_names,
     compute_features,
     feature_names,
-    prefilter_features,
 )
 
 
@@ -62,33 +60,3 @@ def test_feature_set_differences_are_named() -> None:
     assert "uses albedo.*, albedo.std.*, which the input lacks" in msg and "model.pt" in msg
     with pytest.raises(InputError, match="order"):
         check_feature_names(["a", "b"], ["b", "a"], "m")
-
-
-def test_prefilter_features_are_appended_before_spp_and_finite(samples_dir) -> None:
-    b = load_buffers(samples_dir / "cornell_spp4.exr")
-    inp = prepare_inputs(b)
-    irr, var, _ = _demodulate(inp, True, 1e-2)
-    plain, plain_names = compute_features(inp, irr, var, b.spp)
-    feats, names = compute_features(inp, irr, var, b.spp, prefiltered=True)
-    assert names == plain_names[:-1] + list(PRE_NAMES) + ["spp"]
-    assert names == feature_names(
-        ["albedo", "normal", "depth", "position"], list(inp.feature_vars), prefiltered=True
-    )
-    assert torch.equal(feats[:, : len(plain_names) - 1], plain[:, :-1])
-    assert bool(torch.isfinite(feats).all())
-
-
-def test_prefilter_chi2_tells_noise_from_blurred_structure() -> None:
-    """chi2 = (noisy - prefiltered)^2 / variance: about 1 on pure noise of the stated variance,
-    higher where the prefilter blurs a real step (3 noise standard deviations, no guide)."""
-    g = torch.Generator().manual_seed(0)
-    var = 0.01
-    x = 1.0 + var**0.5 * torch.randn(1, 3, 32, 32, generator=g)
-    x[..., 16:] += 3 * var**0.5
-    v = torch.full((1, 1, 32, 32), var)
-    f = prefilter_features(FilterInputs(color=x, color_var=v), x, v)
-    assert bool(torch.isfinite(f).all())
-    chi2 = f[0, PRE_NAMES.index("pre.chi2.3")].exp()
-    flat = torch.cat([chi2[:, :8], chi2[:, 24:]], dim=1)
-    assert 0.7 < float(flat.mean()) < 1.3
-    assert float(chi2[:, 14:18].mean()) > 1.3 * float(flat.mean())

@@ -20,13 +20,12 @@ from mcdenoise.train.dataset import masked_relmse
 GUIDES = ["albedo", "normal", "depth", "position"]
 
 
-def _model(kind: str, buffers, hidden=(8,), settings=None, pre=False) -> KalantariModel:
-    s = settings_class(kind)(**(settings or {}))
-    it = prepare_item(buffers, kind, s, GUIDES, prefiltered=pre)
+def _model(kind: str, buffers, hidden=(8,), settings=None) -> KalantariModel:
+    it = prepare_item(buffers, kind, settings_class(kind)(**(settings or {})), GUIDES)
     with_var = [g for g in GUIDES if f"fvar.{g}" in it]
-    names = feature_names(GUIDES, with_var, prefiltered=pre)
+    names = feature_names(GUIDES, with_var)
     stats = FeatureStats.from_samples(names, [it["features"][None]])
-    return new_model(kind, GUIDES, with_var, stats, list(hidden), settings, prefiltered=pre)
+    return new_model(kind, GUIDES, with_var, stats, list(hidden), settings)
 
 
 @pytest.fixture
@@ -78,28 +77,6 @@ def test_save_load_identical_output_and_card(small, tmp_path: Path) -> None:
     assert torch.equal(m.denoise(small), back.denoise(small))
     assert back.card.to_dict() == m.card.to_dict()
     assert not torch.equal(m.denoise(small), denoise_xbf(small))  # the weights mattered
-
-
-def test_prefiltered_model_round_trips_and_old_cards_load_without_it(
-    small, tmp_path: Path
-) -> None:
-    m = _model("xbf", small, pre=True)
-    for p in m.parameters():
-        p.data.normal_(0, 0.2)
-    m.save(tmp_path / "m.pt")
-    back = KalantariModel.load(tmp_path / "m.pt")
-    assert back.card.prefiltered and "pre.chi2.3" in back.card.features.names
-    assert torch.equal(m.denoise(small), back.denoise(small))
-    # a file written before the prefilter features existed has no "prefiltered" key
-    old = _model("xbf", small)
-    card = old.card.to_dict()
-    del card["prefiltered"]
-    torch.save({"card": card, "state": old.state_dict()}, tmp_path / "old.pt")
-    assert not KalantariModel.load(tmp_path / "old.pt").card.prefiltered
-    # a card that claims the prefilter features without their names is refused by name
-    torch.save({"card": {**card, "prefiltered": True}, "state": {}}, tmp_path / "bad.pt")
-    with pytest.raises(InputError, match=r"pre\.lum"):
-        KalantariModel.load(tmp_path / "bad.pt")
 
 
 def test_incompatible_files_are_refused_with_the_difference(small, tmp_path: Path) -> None:
