@@ -39,9 +39,9 @@ GRIDS: dict[str, dict[str, list[Any]]] = {
     # two-pass cross-bilateral (the baseline of a two-pass learned model)
     "xbf2": {
         "passes": [2],
-        "sigma_spatial": [4.0, 8.0],
-        "sigma_color": [2.0, 4.0],
-        "sigma_color_refine": [0.25, 0.5, 1.0],
+        "sigma_spatial": [2.0, 3.0, 4.0, 8.0],
+        "sigma_color": [2.0, 4.0, 8.0],
+        "sigma_color_refine": [0.125, 0.25, 0.5, 1.0],
     },
 }
 
