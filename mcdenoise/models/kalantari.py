@@ -23,7 +23,7 @@ albedo demodulation), so the comparison with the fixed filter is like for like.
 Model file (``torch.save`` of a dict, read with ``weights_only=True``)::
 
     {"card": {format, kind, guides, guide_vars, features (FeatureStats dict), hidden,
-              context, outputs, bound, settings, training}, "state": state_dict}
+              outputs, bound, settings, training}, "state": state_dict}
 
 Loading checks the format version and that the features the code computes for the model's
 guide set are the ones stored (names and order); an input that lacks a guide the model was
@@ -98,7 +98,6 @@ class ModelCard:
         guide_vars: guides whose variance the model was trained with.
         features: normalisation statistics (their ``names`` are the feature set).
         hidden: hidden layer sizes of the MLP.
-        context: 3×3 convolution layers in front of the MLP (0: the paper's per-pixel MLP).
         settings: the fixed-filter settings the offsets multiply (field -> value).
         training: free-form description of the training run (data, steps, metrics).
     """
@@ -111,7 +110,6 @@ class ModelCard:
     settings: dict[str, Any] = field(default_factory=dict)
     training: dict[str, Any] = field(default_factory=dict)
     bound: float = BOUND
-    context: int = 0
     format: str = FORMAT
 
     @property
@@ -148,7 +146,6 @@ class ModelCard:
                 settings=dict(d.get("settings", {})),
                 training=dict(d.get("training", {})),
                 bound=float(d.get("bound", BOUND)),
-                context=int(d.get("context", 0)),
             )
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"{what}: incomplete model card ({err})") from None
@@ -157,31 +154,12 @@ class ModelCard:
 
 
 class KalantariNet(nn.Module):
-    """Per-pixel MLP: ``(B, F, H, W)`` normalised features -> ``(B, O, H, W)`` log-offsets.
+    """Per-pixel MLP: ``(B, F, H, W)`` normalised features -> ``(B, O, H, W)`` log-offsets."""
 
-    With ``context = n > 0``, ``n`` 3×3 convolutions (width ``hidden[0]``, dilations 1, 2,
-    4, ..., replicate padding) come first, so each pixel's parameters also see its
-    neighbours' features: a receptive field of ``2^(n+1) - 1`` pixels. This goes beyond the
-    paper's per-pixel MLP (``context = 0``).
-    """
-
-    def __init__(
-        self,
-        n_in: int,
-        hidden: Sequence[int],
-        n_out: int,
-        bound: float = BOUND,
-        context: int = 0,
-    ) -> None:
+    def __init__(self, n_in: int, hidden: Sequence[int], n_out: int, bound: float = BOUND) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         c = n_in
-        for i in range(context):
-            h = hidden[0] if hidden else n_in
-            d = 2**i
-            layers += [nn.Conv2d(c, h, 3, padding=d, dilation=d, padding_mode="replicate")]
-            layers += [nn.ReLU()]
-            c = h
         for h in hidden:
             layers += [nn.Conv2d(c, h, 1), nn.ReLU()]
             c = h
@@ -190,8 +168,6 @@ class KalantariNet(nn.Module):
         nn.init.zeros_(last.bias)
         self.body = nn.Sequential(*layers, last)
         self.bound = bound
-        #: Pixels of feature context one pixel's parameters depend on.
-        self.reach = 2**context - 1
 
     def forward(self, z: Tensor) -> Tensor:
         raw = self.body(z)  # (B, O, H, W)
@@ -219,15 +195,13 @@ class KalantariModel(nn.Module):
         self.settings = card.filter_settings()
         expected = feature_names(card.guides, card.guide_vars)
         check_feature_names(card.features.names, expected, "model file", f"mcdenoise {__version__}")
-        self.net = KalantariNet(
-            len(expected), card.hidden, len(card.outputs), card.bound, card.context
-        )
+        self.net = KalantariNet(len(expected), card.hidden, len(card.outputs), card.bound)
 
     # --- sizes ------------------------------------------------------------------------------
     @property
     def radius(self) -> int:
         """Pixels of context a filtered pixel depends on (the training crop margin)."""
-        return filter_radius(self.settings) + self.net.reach
+        return filter_radius(self.settings)
 
     # --- preparation (whole image) ------------------------------------------------------
     def prepare(
@@ -328,12 +302,10 @@ class KalantariModel(nn.Module):
         item = self.prepare(buffers)
         batch = {k: v[None] for k, v in item.items()}
         feats = batch["features"]
-        h, r = feats.shape[-2], self.net.reach  # chunks overlap by the network's reach
-        rows = []
-        for y in range(0, h, chunk_rows):
-            lo, hi = max(0, y - r), min(h, y + chunk_rows + r)
-            o = self.offsets(feats[..., lo:hi, :])
-            rows.append(o[..., y - lo : y - lo + min(chunk_rows, h - y), :])
+        rows = [
+            self.offsets(feats[..., y : y + chunk_rows, :])
+            for y in range(0, feats.shape[-2], chunk_rows)
+        ]
         out = self.filter(batch, torch.cat(rows, dim=-2))
         return torch.nan_to_num(out[0], nan=0.0, posinf=0.0, neginf=0.0).float()
 
@@ -428,7 +400,6 @@ def new_model(
     stats: FeatureStats,
     hidden: Sequence[int],
     settings: Mapping[str, Any] | None = None,
-    context: int = 0,
 ) -> KalantariModel:
     """An untrained model (= the fixed filter) for a guide set and feature statistics."""
     cls = settings_class(kind)
@@ -443,7 +414,6 @@ def new_model(
         stats,
         list(hidden),
         base,
-        context=context,
     )
     return KalantariModel(card)
 

@@ -65,9 +65,6 @@ class TrainConfig:
             reproducible bit for bit for a given thread count).
         threads: torch intra-op threads (0 = leave torch's default).
         hidden: hidden layer sizes of the model's MLP.
-        context: Kalantari models: 3×3 convolution layers (dilations 1, 2, 4, ...) in front
-            of the per-pixel MLP, so the parameters see the neighbours' features (0: the
-            paper's per-pixel MLP).
         kernel: filter window edge (odd; the cross-bilateral kernel or the NLM search window);
             0 = the filter's default (21).
         passes: cross-bilateral passes (1 or 2; the second measures colour distances on the
@@ -122,7 +119,6 @@ class TrainConfig:
     deterministic: bool = True
     threads: int = 0
     hidden: list[int] = field(default_factory=lambda: [32])
-    context: int = 0
     kernel: int = 0
     passes: int = 1
     loss: str = ""
@@ -157,7 +153,6 @@ class TrainConfig:
             (0 <= self.importance <= 1, f"importance must be in [0, 1], got {self.importance}"),
             (0 < self.lr_final <= 1, f"lr_final must be in (0, 1], got {self.lr_final}"),
             (all(h >= 1 for h in self.hidden), f"hidden sizes must be >= 1, got {self.hidden}"),
-            (0 <= self.context <= 4, f"context must be 0 to 4 layers, got {self.context}"),
             (all(v >= 1 for v in self.levels), f"levels must be spp >= 1, got {self.levels}"),
             (self.checkpoints_kept >= 1, "checkpoints_kept must be >= 1"),
             (

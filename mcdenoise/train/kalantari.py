@@ -163,7 +163,7 @@ def build(
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
         return prepare_item(buffers, kind, settings, guides, ref)
 
-    margin = max(cfg.margin, filter_radius(settings) + 2**cfg.context - 1)
+    margin = max(cfg.margin, filter_radius(settings))
     crop = cfg.patch + 2 * margin
     train_items, val_items, report = load_split(cfg, prepare, crop=crop, progress=progress)
     keys = set(train_items[0].tensors)
@@ -175,7 +175,7 @@ def build(
         [it.tensors["features"][None, :, ::STATS_STRIDE, ::STATS_STRIDE] for it in train_items],
     )
     torch.manual_seed(cfg.seed)
-    model = new_model(kind, guides, guide_vars, stats, cfg.hidden, overrides, cfg.context)
+    model = new_model(kind, guides, guide_vars, stats, cfg.hidden, overrides)
     description = describe_training(cfg, train_items, val_items)
     sampler = PatchSampler(
         train_items, patch=cfg.patch, margin=margin, importance=cfg.importance, noisy_key="color"

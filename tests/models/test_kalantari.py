@@ -13,25 +13,19 @@ from mcdenoise.filters.prepare import denoise_nlm, denoise_xbf
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import MissingFeatureError
 from mcdenoise.models.features import FeatureStats, feature_names
-from mcdenoise.models.kalantari import (
-    KalantariModel,
-    filter_radius,
-    new_model,
-    prepare_item,
-    settings_class,
-)
+from mcdenoise.models.kalantari import KalantariModel, new_model, prepare_item, settings_class
 from mcdenoise.train.checkpoint import CheckpointError
 from mcdenoise.train.dataset import masked_relmse
 
 GUIDES = ["albedo", "normal", "depth", "position"]
 
 
-def _model(kind: str, buffers, hidden=(8,), settings=None, context=0) -> KalantariModel:
+def _model(kind: str, buffers, hidden=(8,), settings=None) -> KalantariModel:
     it = prepare_item(buffers, kind, settings_class(kind)(**(settings or {})), GUIDES)
     with_var = [g for g in GUIDES if f"fvar.{g}" in it]
     names = feature_names(GUIDES, with_var)
     stats = FeatureStats.from_samples(names, [it["features"][None]])
-    return new_model(kind, GUIDES, with_var, stats, list(hidden), settings, context)
+    return new_model(kind, GUIDES, with_var, stats, list(hidden), settings)
 
 
 @pytest.fixture
@@ -83,30 +77,6 @@ def test_save_load_identical_output_and_card(small, tmp_path: Path) -> None:
     assert torch.equal(m.denoise(small), back.denoise(small))
     assert back.card.to_dict() == m.card.to_dict()
     assert not torch.equal(m.denoise(small), denoise_xbf(small))  # the weights mattered
-
-
-def test_context_layers_see_neighbours_and_chunked_inference_is_exact(small, tmp_path) -> None:
-    m = _model("xbf", small, context=2)
-    assert m.net.reach == 3 and m.radius == filter_radius(m.settings) + 3
-    for p in m.parameters():
-        p.data.normal_(0, 0.2)
-    # a pixel's offsets depend on features up to `reach` pixels away, not further
-    z = torch.randn(1, len(m.card.features.names), 17, 17, requires_grad=True)
-    (g,) = torch.autograd.grad(m.net(z)[0, :, 8, 8].sum(), z)
-    hit = g.abs().sum(1)[0] > 0
-    assert bool(hit[5:12, 5:12].all()) and not bool(hit[:5].any()) and not bool(hit[12:].any())
-    # row chunks overlap by the reach: identical to one chunk
-    torch.testing.assert_close(
-        m.denoise(small, chunk_rows=5), m.denoise(small), atol=1e-5, rtol=1e-5
-    )
-    m.save(tmp_path / "c.pt")
-    back = KalantariModel.load(tmp_path / "c.pt")
-    assert back.card.context == 2 and torch.equal(back.denoise(small), m.denoise(small))
-    # a card written before the field existed is a per-pixel MLP
-    old = {k: v for k, v in m.card.to_dict().items() if k != "context"}
-    plain = _model("xbf", small)
-    torch.save({"card": old | {"hidden": [8]}, "state": plain.state_dict()}, tmp_path / "old.pt")
-    assert KalantariModel.load(tmp_path / "old.pt").net.reach == 0
 
 
 def test_incompatible_files_are_refused_with_the_difference(small, tmp_path: Path) -> None:
