@@ -115,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         methods.append(("oidn", "oidn", {}))
     entries = scan_dataset(args.heldout)
     errs: dict[tuple[int, str], list[float]] = {}
+    names: dict[int, list[str]] = {}  # image of each entry of errs[(spp, ...)], in order
     secs: dict[str, list[float]] = {}
     skipped = set()
     print(
@@ -129,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         ref = load_buffers(e.reference)["color"]
         spp = e.spp or 0
         errs.setdefault((spp, "noisy"), []).append(relmse(b["color"], ref))
+        names.setdefault(spp, []).append(e.image)
         mp = b.shape[0] * b.shape[1] / 1e6
         for label, name, params in methods:
             p = dict(params)
@@ -174,10 +176,17 @@ def main(argv: list[str] | None = None) -> int:
                 errs[(s, f"{kind}-best")],
                 errs[(s, f"{kind}-default")],
             )
-            r_best = geometric_mean([a / b for a, b in zip(learned, best, strict=True)])
+            ratios = [a / b for a, b in zip(learned, best, strict=True)]
+            r_best = geometric_mean(ratios)
             r_def = geometric_mean([a / b for a, b in zip(learned, default, strict=True)])
-            wins = sum(a < b for a, b in zip(learned, best, strict=True))
-            line = f"  kalantari-{kind} / {kind}-best at {s:>3} spp: {r_best:.3f} (vs default {r_def:.3f}; better on {wins}/{len(best)})"
+            wins = sum(r < 1 for r in ratios)
+            line = f"  kalantari-{kind} / {kind}-best at {s:>3} spp: {r_best:.3f} (vs default {r_def:.3f}; better on {wins}/{len(best)}"
+            # the curated specs (data/scenes) are unlike the random training scenes
+            rand = [r for r, n in zip(ratios, names[s], strict=True) if n.startswith("random_")]
+            cur = [r for r, n in zip(ratios, names[s], strict=True) if not n.startswith("random_")]
+            if rand and cur:
+                line += f"; curated specs {geometric_mean(cur):.3f}, random scenes {geometric_mean(rand):.3f}"
+            line += ")"
             if "oidn" in labels:
                 line += f"; / oidn {geometric_mean([a / b for a, b in zip(learned, errs[(s, 'oidn')], strict=True)]):.3f}"
             print(line)
@@ -191,6 +200,11 @@ def main(argv: list[str] | None = None) -> int:
                 "vs_default": r_def,
                 "wins": wins,
             }
+    out["images"] = {
+        f"{n}@{s}": {label: errs[(s, label)][i] for label in labels}
+        for s in spps
+        for i, n in enumerate(names[s])
+    }
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0
