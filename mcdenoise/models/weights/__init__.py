@@ -1,8 +1,8 @@
 """Shipped model weights and a cached loader.
 
-``kalantari-xbf.pt`` and ``kalantari-nlm.pt`` were trained by the commands in
-``data/recipes/kalantari.md`` on ``mcdenoise render`` data (seed 1000) that no reported
-evaluation uses. :func:`load_kalantari` accepts a model file or a run folder (its
+``kalantari-xbf.pt`` (245 scenes), ``kalantari-nlm.pt`` and ``kalantari-xbf-noalbedo.pt``
+(the first 120 of them) were trained by the commands in ``data/recipes/kalantari.md`` on
+``mcdenoise render`` data (seed 1000) that no reported evaluation uses. :func:`load_kalantari` accepts a model file or a run folder (its
 ``model.pt``) and caches the loaded model per file and modification time.
 """
 
