@@ -9,7 +9,8 @@ Data flow of one image (``(B, C, H, W)`` tensors, linear HDR colour)::
       --U-Net trunk--> decoder features at full, 1/2, 1/4 ... resolution
       --per scale s: 1×1 head -> k² logits -> float32 softmax -> kernels applied to the
         demodulated colour box-downsampled s times                        (multiscale.py)
-      --scale compositor (learned per-pixel α), coarse to fine--> irradiance
+      --scale compositor (learned per-pixel α, and β with vogels+replace), coarse to fine
+        --> irradiance
       --× (albedo + 0.01), clamp >= 0, NaN -> 0--> denoised colour
 
 The kernels average the *linear* demodulated colour (energy is kept; the log transform is
@@ -56,12 +57,19 @@ from mcdenoise.models.encoders import (
     source_channels,
 )
 from mcdenoise.models.features import FeatureStats
-from mcdenoise.models.multiscale import apply_head, composite, downsample
+from mcdenoise.models.multiscale import apply_head, composite, downsample, upsample
 from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kpcn/1"
 ENCODERS = ("source-aware", "shared")
+#: Scale compositors: Vogels 2018's (α: low frequencies from the coarser scale), and the same
+#: followed by a per-pixel move towards the upsampled coarser result (β), which can also drop
+#: the fine kernel's high-frequency residual noise in flat regions.
+COMPOSITORS = ("vogels", "vogels+replace")
+#: Initial bias of the β layers: sigmoid(-4) = 0.018, so a β added to a trained Vogels model
+#: starts close to that model.
+BETA_BIAS = -4.0
 #: Default inference tile edge (pixels, a multiple of 64) and kernel strip height (rows).
 TILE = 1024
 STRIP = 128
@@ -78,6 +86,7 @@ class KpcnCard:
         kernel: kernel edge ``k`` (odd).
         scales: number of kernel scales (full, 1/2, 1/4 ...).
         encoder: ``source-aware`` (one encoder per source) or ``shared`` (one input layer).
+        compositor: one of :data:`COMPOSITORS` (files without the field: ``vogels``).
         training: free-form description of the training run.
     """
 
@@ -88,6 +97,7 @@ class KpcnCard:
     scales: int = 3
     encoder: str = "source-aware"
     training: dict[str, Any] = field(default_factory=dict)
+    compositor: str = "vogels"
     format: str = FORMAT
 
     def check(self, what: str = "model") -> None:
@@ -110,6 +120,8 @@ class KpcnCard:
             problems.append(f"bad channels {self.channels} / scales {self.scales}")
         if self.encoder not in ENCODERS:
             problems.append(f"encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        if self.compositor not in COMPOSITORS:
+            problems.append(f"compositor must be one of {COMPOSITORS}, got {self.compositor!r}")
         if problems:
             raise InputError(f"{what}: {'; '.join(problems)}")
 
@@ -131,6 +143,7 @@ class KpcnCard:
                 scales=int(d["scales"]),
                 encoder=str(d["encoder"]),
                 training=dict(d.get("training", {})),
+                compositor=str(d.get("compositor", "vogels")),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"{what}: incomplete model card ({err})") from None
@@ -143,6 +156,14 @@ def _block(n_in: int, n_out: int, convs: int) -> nn.Sequential:
     for i in range(convs):
         layers += [nn.Conv2d(n_in if i == 0 else n_out, n_out, 3, padding=1), nn.ReLU(inplace=True)]
     return nn.Sequential(*layers)
+
+
+def _beta_layer(n_in: int) -> nn.Conv2d:
+    """A β layer that starts at β = sigmoid(BETA_BIAS) everywhere."""
+    conv = nn.Conv2d(n_in, 1, 1)
+    nn.init.zeros_(conv.weight)
+    nn.init.constant_(conv.bias, BETA_BIAS)
+    return conv
 
 
 class KpcnModel(nn.Module):
@@ -172,6 +193,8 @@ class KpcnModel(nn.Module):
         k2 = card.kernel * card.kernel
         self.heads = nn.ModuleList(nn.Conv2d(ch[s], k2, 1) for s in range(card.scales))
         self.alphas = nn.ModuleList(nn.Conv2d(ch[s], 1, 1) for s in range(card.scales - 1))
+        if card.compositor == "vogels+replace":
+            self.betas = nn.ModuleList(_beta_layer(ch[s]) for s in range(card.scales - 1))
 
     # --- geometry ----------------------------------------------------------------------
     @property
@@ -214,41 +237,80 @@ class KpcnModel(nn.Module):
             outs.append(x)
         return outs[::-1]
 
-    def reconstruct(self, irr: Tensor, feats: Sequence[Tensor], strip: int | None = None) -> Tensor:
-        """Kernels at every scale applied to ``irr`` and composited (float32)."""
+    def reconstruct(
+        self,
+        irr: Tensor,
+        feats: Sequence[Tensor],
+        strip: int | None = None,
+        coarse: list[Tensor] | None = None,
+    ) -> Tensor:
+        """Kernels at every scale applied to ``irr`` and composited (float32).
+
+        ``coarse``: if given, the result at each coarser scale (the coarsest scale's kernels
+        alone, then each composite on the way up) is appended to it, coarsest first, at its
+        own resolution (for the per-scale training loss).
+        """
         images = [irr.float() if irr.dtype != torch.float64 else irr]
         for _ in range(1, self.card.scales):
             images.append(downsample(images[-1]))
         k = self.card.kernel
         res = apply_head(images[-1], feats[self.card.scales - 1], self.heads[-1], k, strip=strip)
         for s in range(self.card.scales - 2, -1, -1):
+            if coarse is not None:
+                coarse.append(res)
             fine = apply_head(images[s], feats[s], self.heads[s], k, strip=strip)
             alpha = torch.sigmoid(self.alphas[s](feats[s]).float())
-            res = composite(fine, res, alpha)
+            beta = None
+            if self.card.compositor == "vogels+replace":
+                beta = torch.sigmoid(self.betas[s](feats[s]).float())
+            res = composite(fine, res, alpha, beta)
         return res
 
-    def run(self, t: Mapping[str, Tensor], source: str, strip: int | None = None) -> Tensor:
-        """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`)."""
+    def run(
+        self,
+        t: Mapping[str, Tensor],
+        source: str,
+        strip: int | None = None,
+        coarse: list[Tensor] | None = None,
+    ) -> Tensor:
+        """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`).
+
+        ``coarse``: if given, receives the coarser scales' results (see :meth:`reconstruct`),
+        each upsampled to full resolution and remodulated like the output.
+        """
         irr, factor = demodulate(t)
         feats = self.trunk(self.encode(source_channels(source, t), source))
-        out = self.reconstruct(irr, feats, strip) * factor.to(irr.dtype)
+        scales: list[Tensor] | None = [] if coarse is not None else None
+        out = self.reconstruct(irr, feats, strip, scales) * factor.to(irr.dtype)
+        if coarse is not None and scales is not None:
+            size = (irr.shape[-2], irr.shape[-1])
+            coarse += [(upsample(c, size) * factor.to(c.dtype)).clamp_min(0.0) for c in scales]
         return out.clamp_min(0.0)
 
-    def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
+    def forward(
+        self, batch: Mapping[str, Tensor], with_scales: bool = False
+    ) -> Tensor | tuple[Tensor, list[Tensor]]:
+        """Denoised crops ``(B, 3, h, w)``; with ``with_scales`` also the coarser scales'
+        results at full resolution, coarsest first (``scales - 1`` tensors like the output)."""
         src = batch["source"]
         out: Tensor | None = None
+        coarse: list[Tensor] = []
         for i, name in enumerate(self.card.sources):
             idx = (src == i).nonzero().flatten()
             if idx.numel() == 0:
                 continue
             sub = {k: v[idx] for k, v in batch.items() if k in SOURCES[name] or k.endswith("_var")}
-            res = self.run(sub, name)
+            extra: list[Tensor] | None = [] if with_scales else None
+            res = self.run(sub, name, coarse=extra)
             if out is None:
                 out = res.new_zeros((src.shape[0], *res.shape[1:]))
+                coarse = [res.new_zeros(out.shape) for _ in range(self.card.scales - 1)]
             out[idx] = res
+            for c, e in zip(coarse, extra or [], strict=False):
+                c[idx] = e
         if out is None:
             raise InputError("empty batch")
-        return out
+        return (out, coarse) if with_scales else out
 
     # --- inference ---------------------------------------------------------------------
     def source_for(self, buffers: FeatureBuffers) -> str:
@@ -346,6 +408,7 @@ def new_model(
     kernel: int = 21,
     scales: int = 3,
     encoder: str = "source-aware",
+    compositor: str = "vogels",
 ) -> KpcnModel:
     """An untrained model."""
     card = KpcnCard(
@@ -355,8 +418,9 @@ def new_model(
         kernel,
         scales,
         encoder,
+        compositor=compositor,
     )
     return KpcnModel(card)
 
 
-__all__ = ["FORMAT", "STRIP", "TILE", "KpcnCard", "KpcnModel", "new_model"]
+__all__ = ["COMPOSITORS", "FORMAT", "STRIP", "TILE", "KpcnCard", "KpcnModel", "new_model"]

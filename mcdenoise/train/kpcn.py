@@ -26,6 +26,7 @@ the base's; a config that asks for a different one is refused, naming the differ
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -99,7 +100,14 @@ class KpcnTask:
         self.find_unused_parameters = cfg.batch < len(val_sources)
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
-        out = self.forward_module(batch)
+        w = self.cfg.scale_loss
+        if w > 0 and self.model.card.scales > 1:
+            out, coarse = self.forward_module(batch, with_scales=True)
+            extra = sum(self._loss(c, batch) for c in coarse) / len(coarse)
+            return self._loss(out, batch) + w * extra
+        return self._loss(self.forward_module(batch), batch)
+
+    def _loss(self, out: Tensor, batch: dict[str, Tensor]) -> Tensor:
         if self.cfg.loss == "log-relmse":
             return crop_log_relmse(out.float(), batch["reference"], batch["mask"])
         return compute_loss(
@@ -166,6 +174,7 @@ def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
         base.card.scales,
         base.card.encoder,
         training={"base": str(cfg.base), "base_training": base.card.training},
+        compositor=base.card.compositor,
     )
     model = KpcnModel(card)
     state = {k: v for k, v in base.state_dict().items() if not k.startswith(f"norms.{src}.")}
@@ -192,10 +201,19 @@ def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
     missing = [s for s in sources if s not in card.sources]
     if missing:
         diff.append(f"sources {missing} (base has {card.sources}; use --finetune-encoder)")
+    comp = cfg.compositor or card.compositor
+    if comp != card.compositor and (card.compositor, comp) != ("vogels", "vogels+replace"):
+        diff.append(f"compositor {comp} (base: {card.compositor})")
     if diff:
         raise InputError(f"{cfg.base}: the config asks for a different model: {'; '.join(diff)}")
     card.training = {"base": str(cfg.base), "base_training": card.training}
-    return base  # loaded with every parameter trainable
+    if comp == card.compositor:
+        return base  # loaded with every parameter trainable
+    # a Vogels model gains beta layers (starting near beta = 0); everything else is kept
+    model = KpcnModel(dataclasses.replace(card, compositor=comp))
+    missing_keys, unexpected = model.load_state_dict(base.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith("betas.") for k in missing_keys), missing_keys
+    return model
 
 
 def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchSampler, LoadReport]:
@@ -232,6 +250,7 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
             kernel=cfg.kernel or DEFAULT_KERNEL,
             scales=cfg.scales,
             encoder=cfg.encoder,
+            compositor=cfg.compositor or "vogels",
         )
         trained = sources
     if crop % model.multiple:

@@ -257,6 +257,77 @@ def test_continued_training_refuses_another_architecture(
         cfg(tiny_dataset, base=base_run, model="kalantari-xbf")
 
 
+def test_a_vogels_base_continues_as_vogels_replace_with_new_beta_layers(
+    base_run: Path, tiny_dataset: Path, tmp_path: Path
+) -> None:
+    base = KpcnModel.load(base_run)
+    assert base.card.compositor == "vogels" and not hasattr(base, "betas")
+    task, _, _ = build(cfg(tiny_dataset, base=base_run, compositor="vogels+replace"))
+    model = task.model
+    assert model.card.compositor == "vogels+replace"
+    old, new = base.state_dict(), model.state_dict()
+    assert set(new) - set(old) == {
+        "betas.0.weight",
+        "betas.0.bias",
+        "betas.1.weight",
+        "betas.1.bias",
+    }
+    for k, v in old.items():
+        assert torch.equal(new[k], v), k
+    # the betas start near 0, so the upgraded model starts close to its base
+    b = load_buffers(sorted(tiny_dataset.glob("*.exr"))[0], part="spp4")
+    model.eval()
+    x, y = base.denoise(b), model.denoise(b)
+    assert ((x - y).abs() / (x.abs() + 0.1)).mean().item() < 0.05
+    # saved and loaded, it stays a vogels+replace model; it cannot go back to vogels
+    model.save(tmp_path / "m.pt")
+    again = KpcnModel.load(tmp_path / "m.pt")
+    assert again.card.compositor == "vogels+replace"
+    assert torch.equal(again.denoise(b), model.denoise(b))
+    with pytest.raises(InputError, match=r"compositor vogels \(base: vogels\+replace\)"):
+        build(cfg(tiny_dataset, base=tmp_path / "m.pt", compositor="vogels"))
+    with pytest.raises(InputError, match="compositor must be"):
+        cfg(tiny_dataset, compositor="median")
+
+
+def test_forward_with_scales_returns_each_coarser_result_and_the_same_output(
+    tiny_dataset: Path,
+) -> None:
+    task, sampler, _ = build(cfg(tiny_dataset))
+    batch = sampler.batch(4, torch.Generator().manual_seed(3))
+    model = task.model.eval()
+    with torch.no_grad():
+        out, coarse = model(batch, with_scales=True)
+        assert torch.equal(out, model(batch))
+    assert len(coarse) == model.card.scales - 1 == 2
+    for c in coarse:
+        assert c.shape == out.shape and bool(torch.isfinite(c).all()) and bool((c >= 0).all())
+        assert not torch.equal(c, out)
+
+
+def test_scale_loss_trains_a_scale_whose_compositor_gate_is_closed(tiny_dataset: Path) -> None:
+    # A closed gate (alpha ~ 0 for the coarsest scale, as a collapsed run ends up) leaves that
+    # scale's kernel head with almost no gradient; the per-scale loss gives it one.
+    grads = {}
+    for w in (0.0, 0.5):
+        task, sampler, _ = build(cfg(tiny_dataset, scale_loss=w))
+        model = task.model.train()
+        with torch.no_grad():
+            model.alphas[1].weight.zero_()
+            model.alphas[1].bias.fill_(-30.0)
+        batch = sampler.batch(4, torch.Generator().manual_seed(4))
+        model.zero_grad()
+        task.loss(batch).backward()
+        grads[w] = model.heads[2].weight.grad.abs().sum().item()
+    assert grads[0.0] < 1e-9
+    assert grads[0.5] > 1e-4
+
+
+def test_scale_loss_must_not_be_negative(tiny_dataset: Path) -> None:
+    with pytest.raises(InputError, match="scale_loss must be >= 0"):
+        cfg(tiny_dataset, scale_loss=-1)
+
+
 # --- (e) augmentation ------------------------------------------------------------------------
 
 
