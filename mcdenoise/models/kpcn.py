@@ -9,8 +9,7 @@ Data flow of one image (``(B, C, H, W)`` tensors, linear HDR colour)::
       --U-Net trunk--> decoder features at full, 1/2, 1/4 ... resolution
       --per scale s: 1×1 head -> k² logits -> float32 softmax -> kernels applied to the
         demodulated colour box-downsampled s times                        (multiscale.py)
-      --scale compositor (learned per-pixel α, and β with vogels+replace), coarse to fine
-        --> irradiance
+      --scale compositor (learned per-pixel α), coarse to fine--> irradiance
       --× (albedo + 0.01), clamp >= 0, NaN -> 0--> denoised colour
 
 The kernels average the *linear* demodulated colour (energy is kept; the log transform is
@@ -63,13 +62,6 @@ from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kpcn/1"
 ENCODERS = ("source-aware", "shared")
-#: Scale compositors: Vogels 2018's (α: low frequencies from the coarser scale), and the same
-#: followed by a per-pixel move towards the upsampled coarser result (β), which can also drop
-#: the fine kernel's high-frequency residual noise in flat regions.
-COMPOSITORS = ("vogels", "vogels+replace")
-#: Initial bias of the β layers: sigmoid(-4) = 0.018, so a β added to a trained Vogels model
-#: starts close to that model.
-BETA_BIAS = -4.0
 #: Default inference tile edge (pixels, a multiple of 64) and kernel strip height (rows).
 TILE = 1024
 STRIP = 128
@@ -86,7 +78,6 @@ class KpcnCard:
         kernel: kernel edge ``k`` (odd).
         scales: number of kernel scales (full, 1/2, 1/4 ...).
         encoder: ``source-aware`` (one encoder per source) or ``shared`` (one input layer).
-        compositor: one of :data:`COMPOSITORS` (files without the field: ``vogels``).
         training: free-form description of the training run.
     """
 
@@ -97,7 +88,6 @@ class KpcnCard:
     scales: int = 3
     encoder: str = "source-aware"
     training: dict[str, Any] = field(default_factory=dict)
-    compositor: str = "vogels"
     format: str = FORMAT
 
     def check(self, what: str = "model") -> None:
@@ -120,8 +110,6 @@ class KpcnCard:
             problems.append(f"bad channels {self.channels} / scales {self.scales}")
         if self.encoder not in ENCODERS:
             problems.append(f"encoder must be one of {ENCODERS}, got {self.encoder!r}")
-        if self.compositor not in COMPOSITORS:
-            problems.append(f"compositor must be one of {COMPOSITORS}, got {self.compositor!r}")
         if problems:
             raise InputError(f"{what}: {'; '.join(problems)}")
 
@@ -143,7 +131,6 @@ class KpcnCard:
                 scales=int(d["scales"]),
                 encoder=str(d["encoder"]),
                 training=dict(d.get("training", {})),
-                compositor=str(d.get("compositor", "vogels")),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"{what}: incomplete model card ({err})") from None
@@ -156,14 +143,6 @@ def _block(n_in: int, n_out: int, convs: int) -> nn.Sequential:
     for i in range(convs):
         layers += [nn.Conv2d(n_in if i == 0 else n_out, n_out, 3, padding=1), nn.ReLU(inplace=True)]
     return nn.Sequential(*layers)
-
-
-def _beta_layer(n_in: int) -> nn.Conv2d:
-    """A β layer that starts at β = sigmoid(BETA_BIAS) everywhere."""
-    conv = nn.Conv2d(n_in, 1, 1)
-    nn.init.zeros_(conv.weight)
-    nn.init.constant_(conv.bias, BETA_BIAS)
-    return conv
 
 
 class KpcnModel(nn.Module):
@@ -193,8 +172,6 @@ class KpcnModel(nn.Module):
         k2 = card.kernel * card.kernel
         self.heads = nn.ModuleList(nn.Conv2d(ch[s], k2, 1) for s in range(card.scales))
         self.alphas = nn.ModuleList(nn.Conv2d(ch[s], 1, 1) for s in range(card.scales - 1))
-        if card.compositor == "vogels+replace":
-            self.betas = nn.ModuleList(_beta_layer(ch[s]) for s in range(card.scales - 1))
 
     # --- geometry ----------------------------------------------------------------------
     @property
@@ -260,10 +237,7 @@ class KpcnModel(nn.Module):
                 coarse.append(res)
             fine = apply_head(images[s], feats[s], self.heads[s], k, strip=strip)
             alpha = torch.sigmoid(self.alphas[s](feats[s]).float())
-            beta = None
-            if self.card.compositor == "vogels+replace":
-                beta = torch.sigmoid(self.betas[s](feats[s]).float())
-            res = composite(fine, res, alpha, beta)
+            res = composite(fine, res, alpha)
         return res
 
     def run(
@@ -408,7 +382,6 @@ def new_model(
     kernel: int = 21,
     scales: int = 3,
     encoder: str = "source-aware",
-    compositor: str = "vogels",
 ) -> KpcnModel:
     """An untrained model."""
     card = KpcnCard(
@@ -418,9 +391,8 @@ def new_model(
         kernel,
         scales,
         encoder,
-        compositor=compositor,
     )
     return KpcnModel(card)
 
 
-__all__ = ["COMPOSITORS", "FORMAT", "STRIP", "TILE", "KpcnCard", "KpcnModel", "new_model"]
+__all__ = ["FORMAT", "STRIP", "TILE", "KpcnCard", "KpcnModel", "new_model"]

@@ -25,11 +25,6 @@ A kernel-predicting network outputs, per pixel and per scale ``s`` (full, 1/2, 1
    with ``D`` the 2×2 box downsampling, ``U`` bilinear upsampling and ``α ∈ [0, 1]`` a per-pixel
    weight predicted by the network: ``α = 1`` takes the low frequencies from the (less noisy)
    coarse result and keeps the high frequencies of the fine one; ``α = 0`` keeps the fine result.
-   With a second per-pixel weight ``β ∈ [0, 1]`` (the ``vogels+replace`` compositor of
-   :class:`~mcdenoise.models.kpcn.KpcnCard`) the result is then moved towards the upsampled
-   coarse one, ``fine'' = fine' + β · (U(coarse) - fine')``: ``β = 1`` also drops the fine
-   result's high frequencies. Vogels' form alone cannot do that, so in a flat region the
-   noise left in the high band of the finest ``k × k`` kernel's result stays in the output.
 
 Everything is differentiable; images are linear HDR ``(B, C, H, W)``, ``H`` and ``W`` divisible by
 ``2^(scales - 1)`` (the caller pads).
@@ -167,24 +162,19 @@ def apply_head(
     return out
 
 
-def composite(fine: Tensor, coarse: Tensor, alpha: Tensor, beta: Tensor | None = None) -> Tensor:
+def composite(fine: Tensor, coarse: Tensor, alpha: Tensor) -> Tensor:
     """Vogels' scale compositor (see the module docstring).
 
     Args:
         fine: ``(B, C, H, W)`` result at the finer scale.
         coarse: ``(B, C, H/2, W/2)`` result at the next coarser scale.
         alpha: ``(B, 1, H, W)`` blend weights in [0, 1] (low frequencies from ``coarse``).
-        beta: optional ``(B, 1, H, W)`` weights in [0, 1] that then move the result towards
-            the upsampled ``coarse`` one, high frequencies included.
     """
     with torch.autocast(fine.device.type, enabled=False):
         fine, coarse, alpha = (_f32(t) for t in (fine, coarse, alpha))
         size = (fine.shape[-2], fine.shape[-1])
-        up = upsample(coarse, size)
-        res = fine + alpha * (up - upsample(downsample(fine), size))
-        if beta is not None:
-            res = res + _f32(beta) * (up - res)
-        return res
+        low_fine = upsample(downsample(fine), size)
+        return fine + alpha * (upsample(coarse, size) - low_fine)
 
 
 __all__ = [

@@ -84,11 +84,6 @@ class TrainConfig:
         encoder: KPCN input module: ``source-aware`` (one small encoder per input source in
             front of the shared trunk, Vogels 2018) or ``shared`` (one input layer on the union
             of the buffers, missing ones zero-filled: the ablation).
-        compositor: KPCN scale compositor: ``vogels`` (Vogels 2018: per-pixel α takes the low
-            frequencies from the coarser scale) or ``vogels+replace`` (then a per-pixel β moves
-            the result towards the upsampled coarser one, high frequencies included); empty:
-            ``vogels`` for a new model, the base's with ``base``. A ``vogels`` base continued
-            as ``vogels+replace`` gets new β layers that start at β = 0.018.
         scale_loss: KPCN: weight of a per-scale loss added to the output's: the mean of the
             same loss on each coarser scale's result (upsampled, remodulated). It keeps every
             scale's kernels a denoiser of their own; without it the compositor can close a
@@ -135,7 +130,6 @@ class TrainConfig:
     channels: list[int] = field(default_factory=lambda: [24, 32, 48, 64])
     scales: int = 3
     encoder: str = "source-aware"
-    compositor: str = ""
     scale_loss: float = 0.0
     sources: list[str] = field(default_factory=lambda: ["full", "basic"])
     augment: bool = True
@@ -181,10 +175,6 @@ class TrainConfig:
             (
                 self.encoder in ("source-aware", "shared"),
                 f"encoder must be source-aware or shared, got {self.encoder!r}",
-            ),
-            (
-                self.compositor in ("", "vogels", "vogels+replace"),
-                f"compositor must be vogels or vogels+replace, got {self.compositor!r}",
             ),
             (self.scale_loss >= 0, f"scale_loss must be >= 0, got {self.scale_loss}"),
             (self.amp in AMP_MODES, f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}"),

@@ -26,7 +26,6 @@ the base's; a config that asks for a different one is refused, naming the differ
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -174,7 +173,6 @@ def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
         base.card.scales,
         base.card.encoder,
         training={"base": str(cfg.base), "base_training": base.card.training},
-        compositor=base.card.compositor,
     )
     model = KpcnModel(card)
     state = {k: v for k, v in base.state_dict().items() if not k.startswith(f"norms.{src}.")}
@@ -201,19 +199,10 @@ def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
     missing = [s for s in sources if s not in card.sources]
     if missing:
         diff.append(f"sources {missing} (base has {card.sources}; use --finetune-encoder)")
-    comp = cfg.compositor or card.compositor
-    if comp != card.compositor and (card.compositor, comp) != ("vogels", "vogels+replace"):
-        diff.append(f"compositor {comp} (base: {card.compositor})")
     if diff:
         raise InputError(f"{cfg.base}: the config asks for a different model: {'; '.join(diff)}")
     card.training = {"base": str(cfg.base), "base_training": card.training}
-    if comp == card.compositor:
-        return base  # loaded with every parameter trainable
-    # a Vogels model gains beta layers (starting near beta = 0); everything else is kept
-    model = KpcnModel(dataclasses.replace(card, compositor=comp))
-    missing_keys, unexpected = model.load_state_dict(base.state_dict(), strict=False)
-    assert not unexpected and all(k.startswith("betas.") for k in missing_keys), missing_keys
-    return model
+    return base  # loaded with every parameter trainable
 
 
 def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchSampler, LoadReport]:
@@ -250,7 +239,6 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
             kernel=cfg.kernel or DEFAULT_KERNEL,
             scales=cfg.scales,
             encoder=cfg.encoder,
-            compositor=cfg.compositor or "vogels",
         )
         trained = sources
     if crop % model.multiple:

@@ -264,33 +264,6 @@ def test_composite_is_float32_under_bf16_autocast() -> None:
     assert out.dtype == torch.float32
 
 
-def test_composite_beta_one_is_the_upsampled_coarse_result_whatever_alpha() -> None:
-    g = torch.Generator().manual_seed(12)
-    fine = torch.rand(2, 3, 8, 10, generator=g)
-    coarse = torch.rand(2, 3, 4, 5, generator=g)
-    alpha = torch.rand(2, 1, 8, 10, generator=g)
-    out = composite(fine, coarse, alpha, torch.ones(2, 1, 8, 10))
-    torch.testing.assert_close(out, upsample(coarse, (8, 10)), atol=1e-6, rtol=0)
-
-
-def test_composite_beta_zero_is_vogels_and_beta_removes_fine_high_frequencies() -> None:
-    g = torch.Generator().manual_seed(13)
-    fine = torch.rand(1, 3, 8, 8, generator=g)
-    coarse = torch.rand(1, 3, 4, 4, generator=g)
-    alpha = torch.rand(1, 1, 8, 8, generator=g)
-    vogels = composite(fine, coarse, alpha)
-    assert torch.equal(composite(fine, coarse, alpha, torch.zeros(1, 1, 8, 8)), vogels)
-    # the case Vogels' form cannot handle: a flat region whose fine result still holds
-    # high-frequency noise; alpha = 1 keeps that noise, beta = 1 removes it
-    yy, xx = torch.meshgrid(torch.arange(8), torch.arange(8), indexing="ij")
-    noisy_flat = (1.0 + torch.where((yy + xx) % 2 == 0, 0.2, -0.2)).expand(1, 3, 8, 8)
-    clean = torch.ones(1, 3, 4, 4)
-    kept = composite(noisy_flat, clean, torch.ones(1, 1, 8, 8))
-    assert (kept - 1).abs().max().item() == pytest.approx(0.2, abs=1e-6)
-    gone = composite(noisy_flat, clean, torch.ones(1, 1, 8, 8), torch.ones(1, 1, 8, 8))
-    torch.testing.assert_close(gone, torch.ones_like(gone), atol=1e-6, rtol=0)
-
-
 # --- gradients (float64 gradcheck) -------------------------------------------------------------
 
 
@@ -300,8 +273,6 @@ def test_composite_gradcheck() -> None:
     coarse = torch.rand(1, 2, 2, 3, dtype=torch.float64, generator=g, requires_grad=True)
     alpha = torch.rand(1, 1, 4, 6, dtype=torch.float64, generator=g, requires_grad=True)
     assert torch.autograd.gradcheck(composite, (fine, coarse, alpha))
-    beta = torch.rand(1, 1, 4, 6, dtype=torch.float64, generator=g, requires_grad=True)
-    assert torch.autograd.gradcheck(composite, (fine, coarse, alpha, beta))
 
 
 @pytest.mark.parametrize("strip", [None, 2])

@@ -257,39 +257,6 @@ def test_continued_training_refuses_another_architecture(
         cfg(tiny_dataset, base=base_run, model="kalantari-xbf")
 
 
-def test_a_vogels_base_continues_as_vogels_replace_with_new_beta_layers(
-    base_run: Path, tiny_dataset: Path, tmp_path: Path
-) -> None:
-    base = KpcnModel.load(base_run)
-    assert base.card.compositor == "vogels" and not hasattr(base, "betas")
-    task, _, _ = build(cfg(tiny_dataset, base=base_run, compositor="vogels+replace"))
-    model = task.model
-    assert model.card.compositor == "vogels+replace"
-    old, new = base.state_dict(), model.state_dict()
-    assert set(new) - set(old) == {
-        "betas.0.weight",
-        "betas.0.bias",
-        "betas.1.weight",
-        "betas.1.bias",
-    }
-    for k, v in old.items():
-        assert torch.equal(new[k], v), k
-    # the betas start near 0, so the upgraded model starts close to its base
-    b = load_buffers(sorted(tiny_dataset.glob("*.exr"))[0], part="spp4")
-    model.eval()
-    x, y = base.denoise(b), model.denoise(b)
-    assert ((x - y).abs() / (x.abs() + 0.1)).mean().item() < 0.05
-    # saved and loaded, it stays a vogels+replace model; it cannot go back to vogels
-    model.save(tmp_path / "m.pt")
-    again = KpcnModel.load(tmp_path / "m.pt")
-    assert again.card.compositor == "vogels+replace"
-    assert torch.equal(again.denoise(b), model.denoise(b))
-    with pytest.raises(InputError, match=r"compositor vogels \(base: vogels\+replace\)"):
-        build(cfg(tiny_dataset, base=tmp_path / "m.pt", compositor="vogels"))
-    with pytest.raises(InputError, match="compositor must be"):
-        cfg(tiny_dataset, compositor="median")
-
-
 def test_forward_with_scales_returns_each_coarser_result_and_the_same_output(
     tiny_dataset: Path,
 ) -> None:
