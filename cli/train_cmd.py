@@ -70,7 +70,7 @@ def train(model, data, out, config_file, overrides, steps, resume, finetune_enco
     from mcdenoise.train.checkpoint import RunFolder
     from mcdenoise.train.config import load_config
     from mcdenoise.train.kalantari import train_kalantari
-    from mcdenoise.train.kpcn import train_kpcn
+    from mcdenoise.train.kpcn import UNUSED_SCALE_WEIGHT, train_kpcn
 
     values = params_from_strings(overrides, option="--set")
     if model is not None:
@@ -103,6 +103,19 @@ def train(model, data, out, config_file, overrides, steps, resume, finetune_enco
         + (f" (learned/fixed geometric mean {ratio:.3f})" if ratio is not None else "")
     )
     click.echo(f"model: {Path(out) / 'model.pt'}")
+    unused = {
+        k: v
+        for k, v in last.items()
+        if k.startswith("val_scale") and k.endswith("_weight") and v < UNUSED_SCALE_WEIGHT
+    }
+    for k, v in sorted(unused.items()):
+        s = int(k[len("val_scale") : -len("_weight")])
+        click.echo(
+            f"warning: the 1/{2**s} scale is almost unused (mean compositor weight {v:.3f} on "
+            "the validation images): its gate closed during training; -s scale_loss=0.5 keeps "
+            "every scale trained",
+            err=True,
+        )
     worse = {k: v for k, v in last.items() if k.endswith("_ratio_to_noisy") and v > 1}
     if worse:
         click.echo(

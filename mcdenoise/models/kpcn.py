@@ -286,6 +286,17 @@ class KpcnModel(nn.Module):
             raise InputError("empty batch")
         return (out, coarse) if with_scales else out
 
+    @torch.no_grad()
+    def compositor_weights(self, t: Mapping[str, Tensor], source: str) -> list[Tensor]:
+        """Per-pixel compositor weights α ``(B, 1, H/2^s, W/2^s)``, one per coarser scale
+        ``s = 1 .. scales-1`` (how much of scale ``s`` enters scale ``s - 1``), of prepared
+        tensors (sizes multiples of :attr:`multiple`). A scale whose α is near 0 everywhere
+        is unused: its gate closed during training."""
+        feats = self.trunk(self.encode(source_channels(source, t), source))
+        return [
+            torch.sigmoid(self.alphas[s](feats[s]).float()) for s in range(self.card.scales - 1)
+        ]
+
     # --- inference ---------------------------------------------------------------------
     def source_for(self, buffers: FeatureBuffers) -> str:
         """The source this model uses for ``buffers`` (or a MissingFeatureError)."""

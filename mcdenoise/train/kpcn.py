@@ -75,6 +75,12 @@ def source_stats(items: Sequence[Item], source: str) -> FeatureStats:
     return FeatureStats.from_samples(channel_names(source), samples)
 
 
+#: Validation images on which the compositor weights are measured.
+SCALE_USE_IMAGES = 8
+#: Below this mean compositor weight a scale counts as unused (``mcdenoise train`` warns).
+UNUSED_SCALE_WEIGHT = 0.01
+
+
 class KpcnTask:
     """A :class:`~mcdenoise.train.loop.Task` for a :class:`KpcnModel`."""
 
@@ -141,8 +147,25 @@ class KpcnTask:
                 idx = [i for i, it in enumerate(self.val_items) if it.entry.spp == spp]
                 res[f"val_{src}_spp{spp}"] = geometric_mean([errs[i] for i in idx])
         res["val_loss"] = geometric_mean(every) if every else math.inf
+        res.update(self._scale_use(device))
         self.last_val = res
         return res
+
+    def _scale_use(self, device: torch.device) -> dict[str, float]:
+        """``val_scale<s>_weight``: mean compositor weight of each coarser scale ``s`` over
+        (up to 8 of) the validation images, on the first source; near 0: the scale is unused."""
+        if self.model.card.scales < 2:
+            return {}
+        sums = [0.0] * (self.model.card.scales - 1)
+        items = self.val_items[:SCALE_USE_IMAGES]
+        m = self.model.multiple
+        for it in items:
+            t = {k: v[None].to(device) for k, v in it.tensors.items() if k != "reference"}
+            h, w = t["color"].shape[-2:]
+            t = {k: v[..., : h - h % m, : w - w % m] for k, v in t.items()}
+            for s, a in enumerate(self.model.compositor_weights(t, self.val_sources[0])):
+                sums[s] += a.mean().item() / len(items)
+        return {f"val_scale{s + 1}_weight": v for s, v in enumerate(sums)}
 
     def export(self, path: Path) -> None:
         # keep what the card already records (a fine-tuned model's base and its training)

@@ -25,7 +25,7 @@ from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import load_config
 from mcdenoise.train.dataset import augment
-from mcdenoise.train.kpcn import build, train_kpcn
+from mcdenoise.train.kpcn import UNUSED_SCALE_WEIGHT, build, train_kpcn
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 #: A tiny kpcn: 3 U-Net levels of 8 channels, 5x5 kernels at 3 scales, 32-px crops.
@@ -288,6 +288,39 @@ def test_scale_loss_trains_a_scale_whose_compositor_gate_is_closed(tiny_dataset:
         grads[w] = model.heads[2].weight.grad.abs().sum().item()
     assert grads[0.0] < 1e-9
     assert grads[0.5] > 1e-4
+
+
+def test_validation_reports_how_much_each_scale_is_used(tiny_dataset: Path) -> None:
+    task, _, _ = build(cfg(tiny_dataset))
+    res = task.validate()
+    assert set(k for k in res if k.startswith("val_scale")) == {
+        "val_scale1_weight",
+        "val_scale2_weight",
+    }
+    assert all(0 < res[f"val_scale{s}_weight"] < 1 for s in (1, 2))
+    with torch.no_grad():  # a closed gate: the 1/4 scale no longer enters the 1/2 one
+        task.model.alphas[1].weight.zero_()
+        task.model.alphas[1].bias.fill_(-10.0)
+    res = task.validate()
+    assert res["val_scale2_weight"] < UNUSED_SCALE_WEIGHT <= res["val_scale1_weight"]
+
+
+def test_cli_train_warns_about_an_unused_scale(
+    tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(
+        train_kpcn_module.KpcnTask,
+        "_scale_use",
+        lambda self, device: {"val_scale1_weight": 0.6, "val_scale2_weight": 0.002},
+    )
+    flags = itertools.chain.from_iterable(
+        ("-s", f"{k}={v}") for k, v in TINY.items() if k not in ("model", "steps")
+    )
+    args = ["train", "--model", "kpcn", "--data", str(tiny_dataset), "--out", str(tmp_path / "r")]
+    r = CliRunner().invoke(main, [*args, "--steps", "2", "--quiet", *flags])
+    assert r.exit_code == 0, r.output
+    assert "the 1/4 scale is almost unused (mean compositor weight 0.002" in r.stderr
+    assert "scale_loss" in r.stderr and "1/2 scale" not in r.stderr
 
 
 def test_scale_loss_must_not_be_negative(tiny_dataset: Path) -> None:
