@@ -12,6 +12,13 @@ Data flow of one image (``(B, C, H, W)`` tensors, linear HDR colour)::
       --scale compositor (learned per-pixel α), coarse to fine--> irradiance
       --× (albedo + 0.01), clamp >= 0, NaN -> 0--> denoised colour
 
+With ``albedo_kernels`` the remodulation factor ``albedo + 0.01`` is itself filtered first, by
+a second set of predicted full-resolution ``k × k`` kernels. Demodulation divides each pixel by
+its own noisy albedo, which is right (colour and albedo come from the same samples); but where
+the albedo is noisy (texture finer than a pixel near a horizon, depth of field, motion blur)
+multiplying the filtered irradiance back by it restores the albedo's noise. The kernels start
+near a delta (centre weight 0.69), so the network can keep sharp textures sharp.
+
 The kernels average the *linear* demodulated colour (energy is kept; the log transform is
 only the network's view of it). The trunk is a lean U-Net: ``channels = [24, 32, 48, 64]``
 are the widths at full, 1/2, 1/4 and 1/8 resolution (two 3×3 convolutions per level down,
@@ -62,6 +69,10 @@ from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kpcn/1"
 ENCODERS = ("source-aware", "shared")
+#: Initial centre logit of the albedo kernels (the others start at 0): e^4 / (e^4 + k² - 1) of
+#: the weight on the pixel itself, 0.69 for k = 5 (not a saturated softmax, whose gradient
+#: would be too small to move away from the delta).
+ALBEDO_CENTRE_LOGIT = 4.0
 #: Default inference tile edge (pixels, a multiple of 64) and kernel strip height (rows).
 TILE = 1024
 STRIP = 128
@@ -78,6 +89,8 @@ class KpcnCard:
         kernel: kernel edge ``k`` (odd).
         scales: number of kernel scales (full, 1/2, 1/4 ...).
         encoder: ``source-aware`` (one encoder per source) or ``shared`` (one input layer).
+        albedo_kernels: filter the remodulation albedo with predicted kernels (see the module
+            docstring; files without the field: ``False``).
         training: free-form description of the training run.
     """
 
@@ -88,6 +101,7 @@ class KpcnCard:
     scales: int = 3
     encoder: str = "source-aware"
     training: dict[str, Any] = field(default_factory=dict)
+    albedo_kernels: bool = False
     format: str = FORMAT
 
     def check(self, what: str = "model") -> None:
@@ -131,6 +145,7 @@ class KpcnCard:
                 scales=int(d["scales"]),
                 encoder=str(d["encoder"]),
                 training=dict(d.get("training", {})),
+                albedo_kernels=bool(d.get("albedo_kernels", False)),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"{what}: incomplete model card ({err})") from None
@@ -143,6 +158,16 @@ def _block(n_in: int, n_out: int, convs: int) -> nn.Sequential:
     for i in range(convs):
         layers += [nn.Conv2d(n_in if i == 0 else n_out, n_out, 3, padding=1), nn.ReLU(inplace=True)]
     return nn.Sequential(*layers)
+
+
+def albedo_head(n_in: int, kernel: int) -> nn.Conv2d:
+    """The 1×1 head of the albedo kernels, starting near a delta (:data:`ALBEDO_CENTRE_LOGIT`)."""
+    conv = nn.Conv2d(n_in, kernel * kernel, 1)
+    nn.init.zeros_(conv.weight)
+    with torch.no_grad():
+        conv.bias.zero_()
+        conv.bias[kernel * kernel // 2] = ALBEDO_CENTRE_LOGIT
+    return conv
 
 
 class KpcnModel(nn.Module):
@@ -172,6 +197,8 @@ class KpcnModel(nn.Module):
         k2 = card.kernel * card.kernel
         self.heads = nn.ModuleList(nn.Conv2d(ch[s], k2, 1) for s in range(card.scales))
         self.alphas = nn.ModuleList(nn.Conv2d(ch[s], 1, 1) for s in range(card.scales - 1))
+        if card.albedo_kernels:
+            self.albedo_head = albedo_head(ch[0], card.kernel)
 
     # --- geometry ----------------------------------------------------------------------
     @property
@@ -254,6 +281,8 @@ class KpcnModel(nn.Module):
         """
         irr, factor = demodulate(t)
         feats = self.trunk(self.encode(source_channels(source, t), source))
+        if self.card.albedo_kernels and "albedo" in t:
+            factor = apply_head(factor, feats[0], self.albedo_head, self.card.kernel, strip=strip)
         scales: list[Tensor] | None = [] if coarse is not None else None
         out = self.reconstruct(irr, feats, strip, scales) * factor.to(irr.dtype)
         if coarse is not None and scales is not None:
@@ -393,6 +422,7 @@ def new_model(
     kernel: int = 21,
     scales: int = 3,
     encoder: str = "source-aware",
+    albedo_kernels: bool = False,
 ) -> KpcnModel:
     """An untrained model."""
     card = KpcnCard(
@@ -402,6 +432,7 @@ def new_model(
         kernel,
         scales,
         encoder,
+        albedo_kernels=albedo_kernels,
     )
     return KpcnModel(card)
 

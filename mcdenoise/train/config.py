@@ -84,6 +84,9 @@ class TrainConfig:
         encoder: KPCN input module: ``source-aware`` (one small encoder per input source in
             front of the shared trunk, Vogels 2018) or ``shared`` (one input layer on the union
             of the buffers, missing ones zero-filled: the ablation).
+        albedo_kernels: KPCN: also predict kernels that filter the remodulation albedo (where
+            it is noisy: sub-pixel texture, depth of field); a base without them, continued
+            with ``albedo_kernels = true``, gets a new head that starts near a delta.
         scale_loss: KPCN: weight of a per-scale loss added to the output's: the mean of the
             same loss on each coarser scale's result (upsampled, remodulated). It keeps every
             scale's kernels a denoiser of their own; without it the compositor can close a
@@ -131,6 +134,7 @@ class TrainConfig:
     scales: int = 3
     encoder: str = "source-aware"
     scale_loss: float = 0.0
+    albedo_kernels: bool = False
     sources: list[str] = field(default_factory=lambda: ["full", "basic"])
     augment: bool = True
     amp: str = "off"

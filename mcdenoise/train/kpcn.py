@@ -196,6 +196,7 @@ def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
         base.card.scales,
         base.card.encoder,
         training={"base": str(cfg.base), "base_training": base.card.training},
+        albedo_kernels=base.card.albedo_kernels,
     )
     model = KpcnModel(card)
     state = {k: v for k, v in base.state_dict().items() if not k.startswith(f"norms.{src}.")}
@@ -222,9 +223,18 @@ def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
     missing = [s for s in sources if s not in card.sources]
     if missing:
         diff.append(f"sources {missing} (base has {card.sources}; use --finetune-encoder)")
+    if card.albedo_kernels and not cfg.albedo_kernels:
+        diff.append("albedo_kernels false (base: true)")
     if diff:
         raise InputError(f"{cfg.base}: the config asks for a different model: {'; '.join(diff)}")
     card.training = {"base": str(cfg.base), "base_training": card.training}
+    if cfg.albedo_kernels and not card.albedo_kernels:
+        # the base gains albedo kernels (starting near a delta); every other weight is kept
+        card.albedo_kernels = True
+        model = KpcnModel(card)
+        missing_keys, unexpected = model.load_state_dict(base.state_dict(), strict=False)
+        assert not unexpected and all(k.startswith("albedo_head.") for k in missing_keys)
+        return model
     return base  # loaded with every parameter trainable
 
 
@@ -262,6 +272,7 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
             kernel=cfg.kernel or DEFAULT_KERNEL,
             scales=cfg.scales,
             encoder=cfg.encoder,
+            albedo_kernels=cfg.albedo_kernels,
         )
         trained = sources
     if crop % model.multiple:

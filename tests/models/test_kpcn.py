@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.losses import smape
 from mcdenoise.models.encoders import (
+    ALBEDO_EPS,
     SOURCES,
     channel_names,
     choose_source,
@@ -22,7 +24,7 @@ from mcdenoise.models.encoders import (
     source_channels,
 )
 from mcdenoise.models.features import FeatureStats
-from mcdenoise.models.kpcn import KpcnModel, new_model
+from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
 from mcdenoise.train.checkpoint import CheckpointError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
@@ -133,8 +135,9 @@ def test_forcing_a_source_the_input_cannot_feed(cornell, model, stats) -> None:
     [
         {"channels": (8, 8, 8), "kernel": 5, "scales": 3},
         {"channels": (8, 8, 8, 8), "kernel": 3, "scales": 2},
+        {"channels": (8, 8, 8), "kernel": 5, "scales": 3, "albedo_kernels": True},
     ],
-    ids=["3lvl-k5-s3", "4lvl-k3-s2"],
+    ids=["3lvl-k5-s3", "4lvl-k3-s2", "3lvl-k5-s3-albedo"],
 )
 def test_tiled_equals_untiled_on_an_odd_size(cornell, stats, arch) -> None:
     m = _tiny(stats, **arch)
@@ -149,6 +152,53 @@ def test_tiled_equals_untiled_on_an_odd_size(cornell, stats, arch) -> None:
         # 1e-5 is the promise; measured ~3e-8 (rounding). 1e-6 also catches a halo too small:
         # the 3-level model (halo 48) is off by 9e-6 with a 16-px halo, by 6e-3 with 8 px
         torch.testing.assert_close(tiled, whole, atol=1e-6, rtol=0, msg=f"tile {tile}")
+
+
+# --- albedo kernels ---------------------------------------------------------------------------
+
+
+def _flat_noisy_albedo(cornell: FeatureBuffers) -> FeatureBuffers:
+    """A crop whose irradiance is exactly 1 everywhere under a noisy albedo."""
+    b = _copy(cornell.crop(0, 0, 32, 32))
+    g = torch.Generator().manual_seed(9)
+    albedo = (0.5 + 0.3 * (torch.rand(3, 32, 32, generator=g) - 0.5)).float()
+    b.buffers["albedo"] = albedo
+    b.buffers["color"] = albedo + ALBEDO_EPS  # demodulated: exactly 1
+    return b
+
+
+def test_albedo_kernels_start_near_a_delta_and_can_remove_albedo_noise(cornell, stats) -> None:
+    b = _flat_noisy_albedo(cornell)
+    plain = _tiny(stats)
+    m = _tiny(stats, albedo_kernels=True)
+    w = torch.softmax(m.albedo_head.bias.detach(), 0)
+    assert w[12].item() == pytest.approx(math.exp(4) / (math.exp(4) + 24), abs=1e-6)
+    assert w[12].item() == pytest.approx(0.69, abs=0.01)
+    # every kernel averages a constant irradiance to itself, so without albedo kernels the
+    # output is the noisy albedo; uniform albedo kernels (a 5x5 box) remove most of its noise
+    noisy = plain.denoise(b, source="full")
+    torch.testing.assert_close(noisy, b["albedo"] + ALBEDO_EPS, atol=1e-5, rtol=1e-5)
+    with torch.no_grad():
+        m.albedo_head.bias.zero_()
+    box = m.denoise(b, source="full")
+    inner = (slice(None), slice(4, -4), slice(4, -4))
+    assert box[inner].std().item() < 0.35 * noisy[inner].std().item()
+    torch.testing.assert_close(box[inner].mean(), noisy[inner].mean(), atol=5e-3, rtol=0)
+
+
+def test_albedo_kernels_survive_save_and_load(cornell, stats, tmp_path) -> None:
+    m = _tiny(stats, albedo_kernels=True)
+    with torch.no_grad():
+        m.albedo_head.weight.normal_(0, 0.1)
+    m.save(tmp_path / "m.pt")
+    again = KpcnModel.load(tmp_path / "m.pt")
+    assert again.card.albedo_kernels
+    crop = cornell.crop(3, 4, 40, 36)
+    assert torch.equal(again.denoise(crop), m.denoise(crop))
+    # model files written before the option have no field: no albedo kernels
+    d = m.card.to_dict()
+    del d["albedo_kernels"]
+    assert not KpcnCard.from_dict(d).albedo_kernels
 
 
 def test_same_input_three_times_gives_identical_bytes(cornell, model) -> None:

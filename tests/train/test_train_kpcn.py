@@ -257,6 +257,29 @@ def test_continued_training_refuses_another_architecture(
         cfg(tiny_dataset, base=base_run, model="kalantari-xbf")
 
 
+def test_a_base_without_albedo_kernels_continues_with_them(
+    base_run: Path, tiny_dataset: Path, tmp_path: Path
+) -> None:
+    base = KpcnModel.load(base_run)
+    assert not base.card.albedo_kernels
+    task, _, _ = build(cfg(tiny_dataset, base=base_run, albedo_kernels="true"))
+    model = task.model
+    assert model.card.albedo_kernels
+    old, new = base.state_dict(), model.state_dict()
+    assert set(new) - set(old) == {"albedo_head.weight", "albedo_head.bias"}
+    for k, v in old.items():
+        assert torch.equal(new[k], v), k
+    model.save(tmp_path / "m.pt")
+    with pytest.raises(InputError, match=r"albedo_kernels false \(base: true\)"):
+        build(cfg(tiny_dataset, base=tmp_path / "m.pt"))
+    # a fresh model with them trains (the head moves)
+    out = tmp_path / "fresh"
+    train_kpcn(cfg(tiny_dataset, albedo_kernels="true", lr=1e-2), out, progress=False)
+    trained = KpcnModel.load(out)
+    assert trained.card.albedo_kernels
+    assert trained.albedo_head.weight.abs().sum().item() > 0
+
+
 def test_forward_with_scales_returns_each_coarser_result_and_the_same_output(
     tiny_dataset: Path,
 ) -> None:
