@@ -103,18 +103,20 @@ def train(model, data, out, config_file, overrides, steps, resume, finetune_enco
         + (f" (learned/fixed geometric mean {ratio:.3f})" if ratio is not None else "")
     )
     click.echo(f"model: {Path(out) / 'model.pt'}")
-    unused = {
-        k: v
+    use = {
+        int(k[len("val_scale") : -len("_weight")]): v
         for k, v in last.items()
-        if k.startswith("val_scale") and k.endswith("_weight") and v < UNUSED_SCALE_WEIGHT
+        if k.startswith("val_scale") and k.endswith("_weight")
     }
-    for k, v in sorted(unused.items()):
-        s = int(k[len("val_scale") : -len("_weight")])
+    if use:
         click.echo(
-            f"warning: the 1/{2**s} scale is almost unused (mean compositor weight {v:.3f} on "
-            "the validation images): its gate closed during training; -s scale_loss=0.5 keeps "
-            "every scale trained",
-            err=True,
+            "scale use (mean compositor weight on the validation images): "
+            + ", ".join(f"1/{2**s} {v:.3f}" for s, v in sorted(use.items()))
+            + "".join(
+                f"; the 1/{2**s} scale is unused (its gate closed in training)"
+                for s, v in sorted(use.items())
+                if v < UNUSED_SCALE_WEIGHT
+            )
         )
     worse = {k: v for k, v in last.items() if k.endswith("_ratio_to_noisy") and v > 1}
     if worse:

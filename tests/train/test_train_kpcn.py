@@ -328,7 +328,7 @@ def test_validation_reports_how_much_each_scale_is_used(tiny_dataset: Path) -> N
     assert res["val_scale2_weight"] < UNUSED_SCALE_WEIGHT <= res["val_scale1_weight"]
 
 
-def test_cli_train_warns_about_an_unused_scale(
+def test_cli_train_reports_scale_use_and_an_unused_scale(
     tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(
@@ -342,8 +342,11 @@ def test_cli_train_warns_about_an_unused_scale(
     args = ["train", "--model", "kpcn", "--data", str(tiny_dataset), "--out", str(tmp_path / "r")]
     r = CliRunner().invoke(main, [*args, "--steps", "2", "--quiet", *flags])
     assert r.exit_code == 0, r.output
-    assert "the 1/4 scale is almost unused (mean compositor weight 0.002" in r.stderr
-    assert "scale_loss" in r.stderr and "1/2 scale" not in r.stderr
+    assert (
+        "scale use (mean compositor weight on the validation images): 1/2 0.600, 1/4 0.002; "
+        "the 1/4 scale is unused (its gate closed in training)" in r.output
+    )
+    assert "1/2 scale is unused" not in r.output
 
 
 def test_scale_loss_must_not_be_negative(tiny_dataset: Path) -> None:
