@@ -63,7 +63,7 @@ from mcdenoise.models.encoders import (
     source_channels,
 )
 from mcdenoise.models.features import FeatureStats
-from mcdenoise.models.multiscale import apply_head, composite, downsample, upsample
+from mcdenoise.models.multiscale import apply_head, composite, downsample
 from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 
 #: Version of the model file layout.
@@ -241,79 +241,43 @@ class KpcnModel(nn.Module):
             outs.append(x)
         return outs[::-1]
 
-    def reconstruct(
-        self,
-        irr: Tensor,
-        feats: Sequence[Tensor],
-        strip: int | None = None,
-        coarse: list[Tensor] | None = None,
-    ) -> Tensor:
-        """Kernels at every scale applied to ``irr`` and composited (float32).
-
-        ``coarse``: if given, the result at each coarser scale (the coarsest scale's kernels
-        alone, then each composite on the way up) is appended to it, coarsest first, at its
-        own resolution (for the per-scale training loss).
-        """
+    def reconstruct(self, irr: Tensor, feats: Sequence[Tensor], strip: int | None = None) -> Tensor:
+        """Kernels at every scale applied to ``irr`` and composited (float32)."""
         images = [irr.float() if irr.dtype != torch.float64 else irr]
         for _ in range(1, self.card.scales):
             images.append(downsample(images[-1]))
         k = self.card.kernel
         res = apply_head(images[-1], feats[self.card.scales - 1], self.heads[-1], k, strip=strip)
         for s in range(self.card.scales - 2, -1, -1):
-            if coarse is not None:
-                coarse.append(res)
             fine = apply_head(images[s], feats[s], self.heads[s], k, strip=strip)
             alpha = torch.sigmoid(self.alphas[s](feats[s]).float())
             res = composite(fine, res, alpha)
         return res
 
-    def run(
-        self,
-        t: Mapping[str, Tensor],
-        source: str,
-        strip: int | None = None,
-        coarse: list[Tensor] | None = None,
-    ) -> Tensor:
-        """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`).
-
-        ``coarse``: if given, receives the coarser scales' results (see :meth:`reconstruct`),
-        each upsampled to full resolution and remodulated like the output.
-        """
+    def run(self, t: Mapping[str, Tensor], source: str, strip: int | None = None) -> Tensor:
+        """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`)."""
         irr, factor = demodulate(t)
         feats = self.trunk(self.encode(source_channels(source, t), source))
         if self.card.albedo_kernels and "albedo" in t:
             factor = apply_head(factor, feats[0], self.albedo_head, self.card.kernel, strip=strip)
-        scales: list[Tensor] | None = [] if coarse is not None else None
-        out = self.reconstruct(irr, feats, strip, scales) * factor.to(irr.dtype)
-        if coarse is not None and scales is not None:
-            size = (irr.shape[-2], irr.shape[-1])
-            coarse += [(upsample(c, size) * factor.to(c.dtype)).clamp_min(0.0) for c in scales]
+        out = self.reconstruct(irr, feats, strip) * factor.to(irr.dtype)
         return out.clamp_min(0.0)
 
-    def forward(
-        self, batch: Mapping[str, Tensor], with_scales: bool = False
-    ) -> Tensor | tuple[Tensor, list[Tensor]]:
-        """Denoised crops ``(B, 3, h, w)``; with ``with_scales`` also the coarser scales'
-        results at full resolution, coarsest first (``scales - 1`` tensors like the output)."""
+    def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
         src = batch["source"]
         out: Tensor | None = None
-        coarse: list[Tensor] = []
         for i, name in enumerate(self.card.sources):
             idx = (src == i).nonzero().flatten()
             if idx.numel() == 0:
                 continue
             sub = {k: v[idx] for k, v in batch.items() if k in SOURCES[name] or k.endswith("_var")}
-            extra: list[Tensor] | None = [] if with_scales else None
-            res = self.run(sub, name, coarse=extra)
+            res = self.run(sub, name)
             if out is None:
                 out = res.new_zeros((src.shape[0], *res.shape[1:]))
-                coarse = [res.new_zeros(out.shape) for _ in range(self.card.scales - 1)]
             out[idx] = res
-            for c, e in zip(coarse, extra or [], strict=False):
-                c[idx] = e
         if out is None:
             raise InputError("empty batch")
-        return (out, coarse) if with_scales else out
+        return out
 
     @torch.no_grad()
     def compositor_weights(self, t: Mapping[str, Tensor], source: str) -> list[Tensor]:

@@ -87,10 +87,6 @@ class TrainConfig:
         albedo_kernels: KPCN: also predict kernels that filter the remodulation albedo (where
             it is noisy: sub-pixel texture, depth of field); a base without them, continued
             with ``albedo_kernels = true``, gets a new head that starts near a delta.
-        scale_loss: KPCN: weight of a per-scale loss added to the output's: the mean of the
-            same loss on each coarser scale's result (upsampled, remodulated). It keeps every
-            scale's kernels a denoiser of their own; without it the compositor can close a
-            scale's gate early in training, after which that scale gets almost no gradient.
         sources: KPCN input sources trained (``full``, ``basic``); each training crop is shown
             to the network as one of them, chosen at random.
         augment: random flips, 90° rotations and colour-channel permutations of the crops.
@@ -133,7 +129,6 @@ class TrainConfig:
     channels: list[int] = field(default_factory=lambda: [24, 32, 48, 64])
     scales: int = 3
     encoder: str = "source-aware"
-    scale_loss: float = 0.0
     albedo_kernels: bool = False
     sources: list[str] = field(default_factory=lambda: ["full", "basic"])
     augment: bool = True
@@ -180,7 +175,6 @@ class TrainConfig:
                 self.encoder in ("source-aware", "shared"),
                 f"encoder must be source-aware or shared, got {self.encoder!r}",
             ),
-            (self.scale_loss >= 0, f"scale_loss must be >= 0, got {self.scale_loss}"),
             (self.amp in AMP_MODES, f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}"),
             (
                 not self.finetune_encoder or bool(self.base),

@@ -105,14 +105,7 @@ class KpcnTask:
         self.find_unused_parameters = cfg.batch < len(val_sources)
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
-        w = self.cfg.scale_loss
-        if w > 0 and self.model.card.scales > 1:
-            out, coarse = self.forward_module(batch, with_scales=True)
-            extra = sum(self._loss(c, batch) for c in coarse) / len(coarse)
-            return self._loss(out, batch) + w * extra
-        return self._loss(self.forward_module(batch), batch)
-
-    def _loss(self, out: Tensor, batch: dict[str, Tensor]) -> Tensor:
+        out = self.forward_module(batch)
         if self.cfg.loss == "log-relmse":
             return crop_log_relmse(out.float(), batch["reference"], batch["mask"])
         return compute_loss(

@@ -280,39 +280,6 @@ def test_a_base_without_albedo_kernels_continues_with_them(
     assert trained.albedo_head.weight.abs().sum().item() > 0
 
 
-def test_forward_with_scales_returns_each_coarser_result_and_the_same_output(
-    tiny_dataset: Path,
-) -> None:
-    task, sampler, _ = build(cfg(tiny_dataset))
-    batch = sampler.batch(4, torch.Generator().manual_seed(3))
-    model = task.model.eval()
-    with torch.no_grad():
-        out, coarse = model(batch, with_scales=True)
-        assert torch.equal(out, model(batch))
-    assert len(coarse) == model.card.scales - 1 == 2
-    for c in coarse:
-        assert c.shape == out.shape and bool(torch.isfinite(c).all()) and bool((c >= 0).all())
-        assert not torch.equal(c, out)
-
-
-def test_scale_loss_trains_a_scale_whose_compositor_gate_is_closed(tiny_dataset: Path) -> None:
-    # A closed gate (alpha ~ 0 for the coarsest scale, as a collapsed run ends up) leaves that
-    # scale's kernel head with almost no gradient; the per-scale loss gives it one.
-    grads = {}
-    for w in (0.0, 0.5):
-        task, sampler, _ = build(cfg(tiny_dataset, scale_loss=w))
-        model = task.model.train()
-        with torch.no_grad():
-            model.alphas[1].weight.zero_()
-            model.alphas[1].bias.fill_(-30.0)
-        batch = sampler.batch(4, torch.Generator().manual_seed(4))
-        model.zero_grad()
-        task.loss(batch).backward()
-        grads[w] = model.heads[2].weight.grad.abs().sum().item()
-    assert grads[0.0] < 1e-9
-    assert grads[0.5] > 1e-4
-
-
 def test_validation_reports_how_much_each_scale_is_used(tiny_dataset: Path) -> None:
     task, _, _ = build(cfg(tiny_dataset))
     res = task.validate()
@@ -347,11 +314,6 @@ def test_cli_train_reports_scale_use_and_an_unused_scale(
         "the 1/4 scale is unused (its gate closed in training)" in r.output
     )
     assert "1/2 scale is unused" not in r.output
-
-
-def test_scale_loss_must_not_be_negative(tiny_dataset: Path) -> None:
-    with pytest.raises(InputError, match="scale_loss must be >= 0"):
-        cfg(tiny_dataset, scale_loss=-1)
 
 
 # --- (e) augmentation ------------------------------------------------------------------------
