@@ -241,6 +241,10 @@ class KpcnModel(nn.Module):
             outs.append(x)
         return outs[::-1]
 
+    def features(self, t: Mapping[str, Tensor], source: str) -> list[Tensor]:
+        """Decoder features of prepared tensors, full resolution first (:meth:`trunk`)."""
+        return self.trunk(self.encode(source_channels(source, t), source))
+
     def reconstruct(self, irr: Tensor, feats: Sequence[Tensor], strip: int | None = None) -> Tensor:
         """Kernels at every scale applied to ``irr`` and composited (float32)."""
         images = [irr.float() if irr.dtype != torch.float64 else irr]
@@ -257,7 +261,7 @@ class KpcnModel(nn.Module):
     def run(self, t: Mapping[str, Tensor], source: str, strip: int | None = None) -> Tensor:
         """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`)."""
         irr, factor = demodulate(t)
-        feats = self.trunk(self.encode(source_channels(source, t), source))
+        feats = self.features(t, source)
         if self.card.albedo_kernels and "albedo" in t:
             factor = apply_head(factor, feats[0], self.albedo_head, self.card.kernel, strip=strip)
         out = self.reconstruct(irr, feats, strip) * factor.to(irr.dtype)
@@ -285,7 +289,7 @@ class KpcnModel(nn.Module):
         ``s = 1 .. scales-1`` (how much of scale ``s`` enters scale ``s - 1``), of prepared
         tensors (sizes multiples of :attr:`multiple`). A scale whose α is near 0 everywhere
         is unused: its gate closed during training."""
-        feats = self.trunk(self.encode(source_channels(source, t), source))
+        feats = self.features(t, source)
         return [
             torch.sigmoid(self.alphas[s](feats[s]).float()) for s in range(self.card.scales - 1)
         ]

@@ -77,7 +77,7 @@ def source_stats(items: Sequence[Item], source: str) -> FeatureStats:
 
 #: Validation images on which the compositor weights are measured.
 SCALE_USE_IMAGES = 8
-#: Below this mean compositor weight a scale counts as unused (``mcdenoise train`` warns).
+#: Below this mean compositor weight a scale counts as unused (``mcdenoise train`` says so).
 UNUSED_SCALE_WEIGHT = 0.01
 
 
