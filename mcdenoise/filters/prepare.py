@@ -80,12 +80,18 @@ class FilterInputs:
 
 
 def box_mean(x: Tensor, r: int) -> Tensor:
-    """Mean over the in-image part of a ``(2r+1)²`` window, ``(B, C, H, W)``."""
+    """Mean over the in-image part of a ``(2r+1)²`` window, ``(B, C, H, W)``.
+
+    Separable (a row sum, then a column sum): ``4r + 2`` additions per pixel instead of
+    ``(2r+1)²``, 30× fewer for the 63×63 regional features.
+    """
     k = 2 * r + 1
-    ones = torch.ones_like(x[:, :1])
-    num = F.avg_pool2d(F.pad(x, (r, r, r, r)), k, stride=1, divisor_override=1)
-    den = F.avg_pool2d(F.pad(ones, (r, r, r, r)), k, stride=1, divisor_override=1)
-    return num / den
+
+    def window_sum(t: Tensor) -> Tensor:
+        t = F.avg_pool2d(F.pad(t, (r, r, 0, 0)), (1, k), stride=1, divisor_override=1)
+        return F.avg_pool2d(F.pad(t, (0, 0, r, r)), (k, 1), stride=1, divisor_override=1)
+
+    return window_sum(x) / window_sum(torch.ones_like(x[:, :1]))
 
 
 def _median3(x: Tensor) -> Tensor:

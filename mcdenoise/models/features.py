@@ -32,6 +32,14 @@ mean absolute deviation of the primary ones over small blocks, and the sample co
 ``spp``                    ``log2(spp)`` (the training mean when the input does not say)
 =========================  ============================================================
 
+Regional features (``regional=True``; not in the paper): the means over a ``63 × 63`` window
+(:data:`REGION`) of ``color.relvar``, ``lum.std.7``, ``lum.grad`` and each ``<guide>.grad``,
+named ``region.relvar``, ``region.lum.std``, ``region.lum.grad``, ``region.<guide>.grad``. A
+pixel's own statistics are noisy estimates of how noisy and how detailed its surroundings
+are; averaged over a region they are precise, and a filter's best bandwidths vary slowly
+across an image (fitted per 16×16 block they reach most of what per-pixel fits reach; see the
+README). The shipped cross-bilateral model uses them.
+
 The ordered names depend only on which guides are present (:func:`feature_names`); a model
 stores them and refuses inputs whose names differ (:func:`check_feature_names`).
 Normalisation (per-feature mean and standard deviation over the training pixels,
@@ -54,6 +62,8 @@ from mcdenoise.filters.prepare import GUIDE_FEATURES, FilterInputs, box_mean
 
 #: Window edges of the local statistics.
 WINDOWS: tuple[int, ...] = (3, 7, 21)
+#: Window edge of the regional means (``regional=True``).
+REGION = 63
 #: Channel names of each guide feature (as in :mod:`mcdenoise.io.buffers`).
 GUIDE_CHANNELS: dict[str, tuple[str, ...]] = {
     "albedo": ("r", "g", "b"),
@@ -65,8 +75,11 @@ GUIDE_CHANNELS: dict[str, tuple[str, ...]] = {
 CLAMP = 8.0
 
 
-def feature_names(guides: Sequence[str], with_guide_vars: Sequence[str] = ()) -> list[str]:
-    """The ordered feature names for inputs with ``guides`` (and variances of ``with_guide_vars``)."""
+def feature_names(
+    guides: Sequence[str], with_guide_vars: Sequence[str] = (), regional: bool = False
+) -> list[str]:
+    """The ordered feature names for inputs with ``guides`` (and variances of
+    ``with_guide_vars``), with the regional means last when ``regional``."""
     guides = [g for g in GUIDE_FEATURES if g in guides]
     names = ["screen.x", "screen.y", "color.r", "color.g", "color.b"]
     for g in guides:
@@ -78,6 +91,9 @@ def feature_names(guides: Sequence[str], with_guide_vars: Sequence[str] = ()) ->
     names += ["lum.mad", "color.relvar"]
     names += [f"{g}.var" for g in guides if g in with_guide_vars]
     names += ["spp"]
+    if regional:
+        names += ["region.relvar", "region.lum.std", "region.lum.grad"]
+        names += [f"region.{g}.grad" for g in guides]
     return names
 
 
@@ -141,7 +157,12 @@ def _mad3(x: Tensor) -> Tensor:
 
 
 def compute_features(
-    inp: FilterInputs, irradiance: Tensor, irradiance_var: Tensor, spp: float | None
+    inp: FilterInputs,
+    irradiance: Tensor,
+    irradiance_var: Tensor,
+    spp: float | None,
+    *,
+    regional: bool = False,
 ) -> tuple[Tensor, list[str]]:
     """Raw (un-normalised) features ``(1, F, H, W)`` and their names.
 
@@ -151,6 +172,7 @@ def compute_features(
         irradiance_var: ``(1, 1, H, W)`` its variance of the mean.
         spp: samples per pixel, or ``None`` when unknown (the ``spp`` feature is then NaN and
             :meth:`FeatureStats.normalize` replaces it by the training mean).
+        regional: also the regional means (see the module docstring).
     """
     _, _, h, w = irradiance.shape
     dt, dev = irradiance.dtype, irradiance.device
@@ -171,18 +193,24 @@ def compute_features(
     guides = [g for g in GUIDE_FEATURES if g in inp.features]
     chans: list[Tensor] = [sx[None, None], sy[None, None], color]
     chans += [inp.features[g] for g in guides]
-    chans += [box_mean(lum, k // 2) for k in WINDOWS] + [_local_std(lum, k) for k in WINDOWS]
+    lum_std = [_local_std(lum, k) for k in WINDOWS]
+    chans += [box_mean(lum, k // 2) for k in WINDOWS] + lum_std
     for g in guides:
         chans += [_local_std(inp.features[g], k) for k in WINDOWS]
-    chans += [_grad(lum)] + [_grad(inp.features[g]) for g in guides]
+    grads = [_grad(lum)] + [_grad(inp.features[g]) for g in guides]
+    chans += grads
     chans += [_mad3(lum)]
-    chans += [torch.log((irradiance_var + 1e-12) / (lum_lin.square() + 1e-4))]
+    relvar = torch.log((irradiance_var + 1e-12) / (lum_lin.square() + 1e-4))
+    chans += [relvar]
     with_vars = [g for g in guides if g in inp.feature_vars]
     chans += [torch.log(inp.feature_vars[g].mean(1, keepdim=True) + 1e-6) for g in with_vars]
     s = math.log2(spp) if spp else math.nan
     chans += [torch.full_like(lum, s)]
+    if regional:
+        r = REGION // 2
+        chans += [box_mean(x, r) for x in [relvar, lum_std[WINDOWS.index(7)], *grads]]
     feats = torch.cat(chans, dim=1)
-    names = feature_names(guides, with_vars)
+    names = feature_names(guides, with_vars, regional)
     if feats.shape[1] != len(names):  # a programming error, not an input error
         raise AssertionError(f"{feats.shape[1]} feature channels for {len(names)} names")
     return feats, names

@@ -113,6 +113,11 @@ class ModelCard:
     format: str = FORMAT
 
     @property
+    def regional(self) -> bool:
+        """Whether the features include the regional means (:mod:`~mcdenoise.models.features`)."""
+        return any(n.startswith("region.") for n in self.features.names)
+
+    @property
     def outputs(self) -> list[str]:
         return output_names(self.kind, self.guides, int(self.settings.get("passes", 1)))
 
@@ -193,7 +198,7 @@ class KalantariModel(nn.Module):
         super().__init__()
         self.card = card
         self.settings = card.filter_settings()
-        expected = feature_names(card.guides, card.guide_vars)
+        expected = feature_names(card.guides, card.guide_vars, card.regional)
         check_feature_names(card.features.names, expected, "model file", f"mcdenoise {__version__}")
         self.net = KalantariNet(len(expected), card.hidden, len(card.outputs), card.bound)
 
@@ -220,6 +225,7 @@ class KalantariModel(nn.Module):
             self.card.guides,
             reference,
             self.card.guide_vars,
+            regional=self.card.regional,
         )
         return item
 
@@ -354,6 +360,8 @@ def prepare_item(
     guides: Sequence[str],
     reference: Tensor | None = None,
     guide_vars: Sequence[str] | None = None,
+    *,
+    regional: bool = False,
 ) -> dict[str, Tensor]:
     """Filter inputs and raw features of one image, ``{name: (C, H, W)}``.
 
@@ -376,7 +384,7 @@ def prepare_item(
     if guide_vars is not None:
         inp.feature_vars = {g: v for g, v in inp.feature_vars.items() if g in guide_vars}
     irr, var, factor = _demodulate(inp, settings.demodulate, settings.albedo_eps)
-    feats, _ = compute_features(inp, irr, var, buffers.spp)
+    feats, _ = compute_features(inp, irr, var, buffers.spp, regional=regional)
     out = {
         "color": inp.color[0],
         "irr": irr[0],

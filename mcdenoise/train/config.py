@@ -99,6 +99,8 @@ class TrainConfig:
             run's schedule (its architecture must match the config's).
         guides: guide features the model uses (and will require at inference); images of
             the data set without one of them are skipped and reported.
+        regional: Kalantari models: also the regional feature means (63×63 windows; see
+            :mod:`mcdenoise.models.features`).
         checkpoints_kept: how many checkpoints to keep in ``checkpoints/`` (the newest ones).
         device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``.
     """
@@ -136,6 +138,7 @@ class TrainConfig:
     finetune_encoder: str = ""
     base: str = ""
     guides: list[str] = field(default_factory=lambda: ["albedo", "normal", "depth", "position"])
+    regional: bool = False
     checkpoints_kept: int = 3
     device: str = "cpu"
 
@@ -179,6 +182,10 @@ class TrainConfig:
             (
                 not self.finetune_encoder or bool(self.base),
                 "finetune_encoder needs base (the run folder whose trunk is kept)",
+            ),
+            (
+                not self.regional or self.model != "kpcn",
+                "regional (the regional feature means) is for kalantari models only",
             ),
             (
                 not self.base or self.model == "kpcn",

@@ -161,7 +161,7 @@ def build(
     guides = [g for g in GUIDE_FEATURES if g in cfg.guides]
 
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
-        return prepare_item(buffers, kind, settings, guides, ref)
+        return prepare_item(buffers, kind, settings, guides, ref, regional=cfg.regional)
 
     margin = max(cfg.margin, filter_radius(settings))
     crop = cfg.patch + 2 * margin
@@ -169,7 +169,7 @@ def build(
     keys = set(train_items[0].tensors)
     guide_vars = [g for g in guides if f"fvar.{g}" in keys]
     val_items = [it for it in val_items if set(it.tensors) == keys]
-    names = feature_names(guides, guide_vars)
+    names = feature_names(guides, guide_vars, cfg.regional)
     stats = FeatureStats.from_samples(
         names,
         [it.tensors["features"][None, :, ::STATS_STRIDE, ::STATS_STRIDE] for it in train_items],

@@ -8,6 +8,7 @@ import torch
 from mcdenoise.errors import InputError
 from mcdenoise.filters.prepare import (
     FilterInputs,
+    box_mean,
     denoise_nlm,
     denoise_xbf,
     estimate_variance,
@@ -79,6 +80,20 @@ def test_feature_with_variance_is_prefiltered(scene) -> None:
     assert torch.equal(inp.albedo, inp.features["albedo"])  # demodulation uses the same
     raw = prepare_inputs(fb, prefilter=False)
     torch.testing.assert_close(raw.features["albedo"][0], noisy_albedo[0].float())
+
+
+@pytest.mark.parametrize("r", [0, 1, 3, 31])
+def test_box_mean_is_the_mean_over_the_in_image_window(r: int) -> None:
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(2, 3, 9, 40, generator=g, dtype=torch.float64)
+    got = box_mean(x, r)
+    want = torch.empty_like(x)
+    for y in range(9):
+        for i in range(40):
+            want[..., y, i] = x[..., max(0, y - r) : y + r + 1, max(0, i - r) : i + r + 1].mean(
+                (-2, -1)
+            )
+    torch.testing.assert_close(got, want, atol=1e-12, rtol=0)
 
 
 def test_robust_variance_lifts_dropouts_and_keeps_outliers_local() -> None:

@@ -33,6 +33,28 @@ def test_features_of_a_render_match_their_names_and_are_finite(samples_dir) -> N
     assert float(feats[0, names.index("lum.std.3")].mean()) > 0
 
 
+def test_regional_features_are_63px_means_appended_last(samples_dir) -> None:
+    b = load_buffers(samples_dir / "cornell_spp4.exr")
+    inp = prepare_inputs(b)
+    irr, var, _ = _demodulate(inp, True, 1e-2)
+    plain, names = compute_features(inp, irr, var, b.spp)
+    feats, rnames = compute_features(inp, irr, var, b.spp, regional=True)
+    guides = ["albedo", "normal", "depth", "position"]
+    assert rnames == feature_names(guides, list(inp.feature_vars), regional=True)
+    assert rnames[: len(names)] == names and torch.equal(feats[:, : len(names)], plain)
+    assert rnames[len(names) :] == [
+        "region.relvar", "region.lum.std", "region.lum.grad",
+        *[f"region.{g}.grad" for g in guides],
+    ]  # fmt: skip
+    # one pixel by hand: the mean of its pixel's relvar over the in-image part of 63 x 63
+    relvar = plain[0, names.index("color.relvar")]
+    y, x = 10, 100
+    window = relvar[max(0, y - 31) : y + 32, max(0, x - 31) : x + 32]
+    got = feats[0, rnames.index("region.relvar"), y, x]
+    assert float(got) == pytest.approx(float(window.mean()), rel=1e-4)
+    assert bool(torch.isfinite(feats).all())
+
+
 def test_unknown_spp_becomes_the_training_mean() -> None:
     feats = torch.randn(1, 3, 4, 4)
     feats[:, 2] = math.nan

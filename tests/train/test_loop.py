@@ -11,6 +11,7 @@ import torch
 from tiny_settings import TINY_KALANTARI
 
 from mcdenoise.errors import InputError
+from mcdenoise.io import load_buffers
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.train.checkpoint import CheckpointError, RunFolder
 from mcdenoise.train.config import load_config
@@ -83,6 +84,17 @@ def test_a_model_without_albedo_records_its_guides(tiny_dataset: Path, tmp_path:
         train_kalantari(
             cfg(tiny_dataset, guides="albedo,visibility"), tmp_path / "x", progress=False
         )
+
+
+def test_regional_features_are_trained_and_required(tiny_dataset: Path, tmp_path: Path) -> None:
+    c = cfg(tiny_dataset, regional="true", steps=2, epoch_steps=2)
+    train_kalantari(c, tmp_path / "run", progress=False)
+    m = KalantariModel.load(tmp_path / "run")
+    assert m.card.regional and m.card.features.names[-1] == "region.position.grad"
+    b = load_buffers(next(tiny_dataset.glob("*.exr")), part="spp4")
+    assert m.prepare(b)["features"].shape[0] == len(m.card.features.names)
+    with pytest.raises(InputError, match="kalantari models only"):
+        cfg(tiny_dataset, regional="true", model="kpcn")
 
 
 def test_schedule_warms_up_then_decays() -> None:
