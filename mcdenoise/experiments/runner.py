@@ -51,6 +51,7 @@ from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepar
 from mcdenoise.experiments.spec import NOISY, ExperimentError, ExperimentSpec
 from mcdenoise.experiments.timing import machine_info, time_runs, torch_threads
 from mcdenoise.io.atomic import write_text_atomic
+from mcdenoise.models.weights import weights_digest
 
 #: Version of the unit records in ``DIR/work``; bump when their fields change meaning.
 UNIT_SCHEMA = "mcdenoise.experiment-unit/1"
@@ -205,6 +206,7 @@ class RunSettings:
 def fingerprint(unit: Unit, settings: RunSettings) -> str:
     """Hash of everything that decides a unit's record; a cached record is reused only when
     it matches."""
+    params = unit.entry.params()
     payload = {
         "schema": UNIT_SCHEMA,
         "version": __version__,
@@ -213,7 +215,12 @@ def fingerprint(unit: Unit, settings: RunSettings) -> str:
         "part": unit.level.part,
         "label": unit.entry.label,
         "method": unit.entry.method,
-        "params": unit.entry.params(),
+        "params": params,
+        # the learned methods' weights by content: a retrained run folder or updated shipped
+        # weights must not reuse records made with the old ones
+        "weights": (
+            weights_digest(unit.entry.method, str(params["model"])) if "model" in params else None
+        ),
         "metrics": list(settings.metrics),
         "repetitions": settings.repetitions if not unit.entry.is_noisy else 0,
         "warmup": settings.warmup if not unit.entry.is_noisy else 0,

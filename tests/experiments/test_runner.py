@@ -188,6 +188,22 @@ def test_interrupted_run_resumes_without_redoing_finished_units(tmp_path: Path, 
     assert again.ran == [] and len(again.reused) == 18 and fake_methods.calls == {}
 
 
+def test_retrained_weights_rerun_the_method_that_loads_them(tmp_path: Path, fake_methods):
+    weights = tmp_path / "run" / "model.pt"
+    weights.parent.mkdir()
+    weights.write_bytes(b"first weights")
+    fake_methods.add("box", blend)
+    fake_methods.add("learned", blend, defaults={"strength": 1.0, "model": str(weights.parent)})
+    path = spec_file(tmp_path, '["box", "learned"]', scenes=("alpha",))
+    out = tmp_path / "out"
+    run_experiment(load_experiment(path), out)
+    fake_methods.calls.clear()
+    assert run_experiment(load_experiment(path), out).ran == []  # same weights: all reused
+    weights.write_bytes(b"retrained weights")  # same path, same parameters, other content
+    summary = run_experiment(load_experiment(path), out)
+    assert sorted(k[2] for k in summary.ran) == ["learned"] * 3 and len(summary.reused) == 6
+
+
 def test_changed_parameters_rerun_only_that_method(tmp_path: Path, fake_methods):
     fake_methods.add("box", blend)
     fake_methods.add("soft", blend, defaults={"strength": 0.5})

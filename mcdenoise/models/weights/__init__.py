@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 from pathlib import Path
 
@@ -37,6 +38,31 @@ def shipped_model_for(name: str, buffers_present: set[str]) -> Path:
     if "albedo" not in buffers_present and variant.is_file():
         return variant
     return shipped_model_path(name)
+
+
+@functools.lru_cache(maxsize=64)
+def _file_digest(path: str, mtime_ns: int, size: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def weights_digest(method: str, model: str) -> str:
+    """Content hash of the weights ``method`` loads for its ``model`` parameter: ``"shipped"``
+    (the shipped file and its variants) or a model file / run folder. Experiment caches key on
+    it, so retrained or updated weights never reuse a result made with others. Files that do
+    not exist hash as ``missing``."""
+    if model in ("", "shipped"):
+        paths = [shipped_model_path(method), *sorted(WEIGHTS.glob(f"{method}-*.pt"))]
+    else:
+        p = Path(model)
+        paths = [p / "model.pt" if p.is_dir() else p]
+    parts = []
+    for p in paths:
+        if p.is_file():
+            st = p.stat()
+            parts.append(_file_digest(str(p.resolve()), st.st_mtime_ns, st.st_size))
+        else:
+            parts.append("missing")
+    return ",".join(parts)
 
 
 @functools.lru_cache(maxsize=8)
