@@ -20,10 +20,11 @@ from mcdenoise.train.dataset import masked_relmse
 GUIDES = ["albedo", "normal", "depth", "position"]
 
 
-def _model(kind: str, buffers, hidden=(8,), settings=None) -> KalantariModel:
-    it = prepare_item(buffers, kind, settings_class(kind)(**(settings or {})), GUIDES)
+def _model(kind: str, buffers, hidden=(8,), settings=None, regional=False) -> KalantariModel:
+    settings_ = settings_class(kind)(**(settings or {}))
+    it = prepare_item(buffers, kind, settings_, GUIDES, regional=regional)
     with_var = [g for g in GUIDES if f"fvar.{g}" in it]
-    names = feature_names(GUIDES, with_var)
+    names = feature_names(GUIDES, with_var, regional)
     stats = FeatureStats.from_samples(names, [it["features"][None]])
     return new_model(kind, GUIDES, with_var, stats, list(hidden), settings)
 
@@ -108,9 +109,10 @@ def test_input_without_a_trained_guide_is_refused_by_name(small) -> None:
         m.denoise(no_albedo)
 
 
-@pytest.mark.parametrize("kind", ["xbf", "nlm"])
-def test_hard_cases_never_give_nan(small, kind) -> None:
-    m = _model(kind, small)
+@pytest.mark.parametrize(("kind", "regional"), [("xbf", False), ("nlm", False), ("xbf", True)])
+def test_hard_cases_never_give_nan(small, kind, regional) -> None:
+    m = _model(kind, small, regional=regional)
+    assert m.card.regional == regional
     for p in m.parameters():
         p.data.normal_(0, 1.0)
     b = small.to()
@@ -122,6 +124,7 @@ def test_hard_cases_never_give_nan(small, kind) -> None:
     b["normal"][:, 3, 3] = float("nan")
     b["depth"][:, 4, 4] = float("inf")
     b["position"][:, 6, 6] = float("-inf")
+    assert bool(torch.isfinite(m.prepare(b)["features"]).all())  # no NaN spread by a window
     out = m.denoise(b)
     assert bool(torch.isfinite(out).all()) and float(out.min()) >= 0
 
