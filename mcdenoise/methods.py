@@ -48,6 +48,7 @@ from mcdenoise.filters.prepare import NlmSettings, XbfSettings, denoise_nlm, den
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.models.weights import (
     NO_ALBEDO,
+    SHIPPED,
     load_kalantari,
     load_kpcn,
     shipped_model_for,
@@ -56,8 +57,6 @@ from mcdenoise.models.weights import (
 from mcdenoise.registry import Method, dataclass_defaults, register
 
 GUIDES = ("albedo", "normal", "depth", "position")
-#: ``model`` parameter value meaning "the weights shipped in the package".
-SHIPPED = "shipped"
 GUIDE_VARS = tuple(g + "_var" for g in GUIDES)
 
 

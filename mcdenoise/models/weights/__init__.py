@@ -19,6 +19,8 @@ from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.train.checkpoint import CheckpointError, load_state
 
 WEIGHTS = Path(__file__).resolve().parent
+#: ``model`` parameter value of the learned methods meaning "the weights shipped here".
+SHIPPED = "shipped"
 
 
 #: Suffix of the shipped variant trained without albedo (for AO renders and other inputs
@@ -50,18 +52,19 @@ def weights_digest(method: str, model: str) -> str:
     (the shipped file and its variants) or a model file / run folder. Experiment caches key on
     it, so retrained or updated weights never reuse a result made with others. Files that do
     not exist hash as ``missing``."""
-    if model in ("", "shipped"):
+    if model in ("", SHIPPED):
         paths = [shipped_model_path(method), *sorted(WEIGHTS.glob(f"{method}-*.pt"))]
     else:
-        p = Path(model)
-        paths = [p / "model.pt" if p.is_dir() else p]
+        paths = [Path(model)]
     parts = []
-    for p in paths:
-        if p.is_file():
-            st = p.stat()
-            parts.append(_file_digest(str(p.resolve()), st.st_mtime_ns, st.st_size))
-        else:
+    for path in paths:
+        try:
+            p = _model_file(path)
+        except CheckpointError:
             parts.append("missing")
+            continue
+        st = p.stat()
+        parts.append(_file_digest(str(p.resolve()), st.st_mtime_ns, st.st_size))
     return ",".join(parts)
 
 
