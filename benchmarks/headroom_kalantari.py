@@ -37,7 +37,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from mcdenoise.eval.metrics import RELMSE_EPS
+from mcdenoise.eval.metrics import RELMSE_EPS, relmse
 from mcdenoise.io import load_buffers
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
@@ -103,10 +103,6 @@ def select(outputs: Tensor, score: Tensor, radius: int) -> tuple[Tensor, int]:
     pick = box(score, radius).argmin(1, keepdim=True)  # (1,1,H,W)
     idx = pick[:, :, None].expand(-1, -1, outputs.shape[2], -1, -1)
     return torch.gather(outputs, 1, idx)[:, 0], int(score.mean((2, 3)).argmin(1))
-
-
-def relmse_t(x: Tensor, ref: Tensor) -> float:
-    return float(((x - ref) ** 2 / (ref**2 + RELMSE_EPS)).mean())
 
 
 def load_pair(path: Path, part: str | None, reference: Path) -> tuple[object, Tensor]:
@@ -182,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         row = {"base": float(true[:, len(maps) // 2].mean())}
         for name, score in (("oracle", true), ("sure", sure)):
             out, whole = select(outs, score, args.radius)
-            row[f"{name}-block"] = relmse_t(out, ref[None])
+            row[f"{name}-block"] = relmse(out[0], ref)
             row[f"{name}-image"] = float(true[:, whole].mean())
         best = stored.get(f"{e.image}@{e.spp}", {}).get("xbf-best")
         if best:
