@@ -34,10 +34,10 @@ import time
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from mcdenoise.eval.metrics import RELMSE_EPS, relmse
+from mcdenoise.filters.prepare import box_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
@@ -52,9 +52,9 @@ PROBE = 0.05
 PILOT_RADIUS = 3
 
 
-def box(x: Tensor, r: int) -> Tensor:
-    """Mean over a (2r+1)² window, edges replicated."""
-    return F.avg_pool2d(F.pad(x, (r, r, r, r), mode="replicate"), 2 * r + 1, stride=1)
+def shifts(s: float) -> list[tuple[float, float]]:
+    """The candidates' (spatial, colour) log-bandwidth shifts; the middle one is (0, 0)."""
+    return [(ds, dc) for ds in (-s, 0.0, s) for dc in (-s, 0.0, s)]
 
 
 def candidates(model: KalantariModel, o: Tensor, s: float) -> list[Tensor]:
@@ -63,12 +63,11 @@ def candidates(model: KalantariModel, o: Tensor, s: float) -> list[Tensor]:
     spatial = [outs.index(n) for n in ("spatial", "spatial2") if n in outs]
     color = [outs.index(n) for n in ("color", "color2") if n in outs]
     res = []
-    for ds in (-s, 0.0, s):
-        for dc in (-s, 0.0, s):
-            oc = o.clone()
-            oc[:, spatial] += ds
-            oc[:, color] += dc
-            res.append(oc)
+    for ds, dc in shifts(s):
+        oc = o.clone()
+        oc[:, spatial] += ds
+        oc[:, color] += dc
+        res.append(oc)
     return res
 
 
@@ -100,7 +99,7 @@ def error_maps(
 
 def select(outputs: Tensor, score: Tensor, radius: int) -> tuple[Tensor, int]:
     """Per-pixel choice by the block-averaged score ``(1,K,H,W)``, and the per-image choice."""
-    pick = box(score, radius).argmin(1, keepdim=True)  # (1,1,H,W)
+    pick = box_mean(score, radius).argmin(1, keepdim=True)  # (1,1,H,W)
     idx = pick[:, :, None].expand(-1, -1, outputs.shape[2], -1, -1)
     return torch.gather(outputs, 1, idx)[:, 0], int(score.mean((2, 3)).argmin(1))
 
@@ -124,11 +123,10 @@ def gaussian_check(model: KalantariModel, heldout: Path, image: str, s: float) -
         noise = batch["irr_var"].sqrt() * torch.randn(a.shape, generator=gen)
         batch["irr"] = ref[None] / a + noise
         o = model.offsets(batch["features"])
-        pilot = box(model.filter(batch, o), PILOT_RADIUS)
+        pilot = box_mean(model.filter(batch, o), PILOT_RADIUS)
         print(f"Gaussian-noise check on {image} at {e.spp} spp (noise of the buffer's variance):")
         print(f"{'shift (spatial, colour)':>26}{'SURE':>12}{'true':>12}")
-        shifts = [(ds, dc) for ds in (-s, 0.0, s) for dc in (-s, 0.0, s)]
-        for (ds, dc), oc in zip(shifts, candidates(model, o, s), strict=True):
+        for (ds, dc), oc in zip(shifts(s), candidates(model, o, s), strict=True):
             _, true, sure = error_maps(model, batch, oc, ref[None], pilot)
             print(f"{f'({ds:+.1f}, {dc:+.1f})':>26}{sure.mean():>12.6f}{true.mean():>12.6f}")
 
@@ -167,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         with torch.no_grad():
             batch = {k: v[None] for k, v in model.prepare(b).items()}
             o = model.offsets(batch["features"])
-            pilot = box(model.filter(batch, o), PILOT_RADIUS)
+            pilot = box_mean(model.filter(batch, o), PILOT_RADIUS)
             maps = [
                 error_maps(model, batch, oc, ref[None], pilot)
                 for oc in candidates(model, o, args.shift)
