@@ -1,0 +1,54 @@
+"""Record the outputs of every shipped method on ``data/samples`` (the golden file).
+
+Run from the repository root, on the code whose outputs are to be kept::
+
+    python tests/methods/make_golden.py tests/methods/golden_outputs.npz
+
+It keeps a fixed subset of each output's pixels (every 17th pixel in raster order plus the
+whole border) so the file stays small; ``test_golden_outputs.py`` recomputes them and compares
+within 1e-6. Methods run on the CPU with one thread.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLES = ROOT / "data" / "samples"
+METHODS = ("nlm", "cross-bilateral", "kalantari-xbf", "kalantari-nlm", "kpcn")
+
+
+def pixel_index(h: int, w: int) -> np.ndarray:
+    """Flat indices kept per output: every 17th pixel and the whole border."""
+    flat = np.arange(h * w)
+    y, x = flat // w, flat % w
+    keep = (flat % 17 == 0) | (y == 0) | (y == h - 1) | (x == 0) | (x == w - 1)
+    return flat[keep]
+
+
+def sample_files() -> list[Path]:
+    return sorted(SAMPLES.glob("*_spp*.exr"))
+
+
+def main(out: str) -> None:
+    from mcdenoise.denoise import denoise
+    from mcdenoise.io import load_buffers
+
+    torch.set_num_threads(1)
+    arrays: dict[str, np.ndarray] = {}
+    for path in sample_files():
+        buffers = load_buffers(path)
+        for name in METHODS:
+            img = denoise(buffers, name, device="cpu").image.numpy()  # (3, H, W)
+            idx = pixel_index(*img.shape[1:])
+            arrays[f"{path.stem}/{name}"] = img.reshape(3, -1)[:, idx].astype(np.float32)
+            print(path.stem, name, float(img.mean()), file=sys.stderr)
+    np.savez_compressed(out, **arrays)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])
