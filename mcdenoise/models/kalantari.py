@@ -56,13 +56,13 @@ from mcdenoise.filters.prepare import (
     prepare_inputs,
 )
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
+from mcdenoise.modelfile import load_weights, read_model_file, save_model
 from mcdenoise.models.features import (
     FeatureStats,
     check_feature_names,
     compute_features,
     feature_names,
 )
-from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kalantari/1"
@@ -318,7 +318,7 @@ class KalantariModel(nn.Module):
     # --- files ---------------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the model file atomically."""
-        save_state({"card": self.card.to_dict(), "state": self.state_dict()}, path)
+        save_model(self.card.to_dict(), self, path)
 
     @staticmethod
     def load(path: str | os.PathLike[str]) -> KalantariModel:

@@ -51,6 +51,7 @@ from torch import Tensor, nn
 
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
+from mcdenoise.modelfile import load_weights, read_model_file, save_model
 from mcdenoise.models.encoders import (
     SOURCES,
     Normalizer,
@@ -64,7 +65,6 @@ from mcdenoise.models.encoders import (
 )
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.multiscale import apply_head, composite, downsample
-from mcdenoise.train.checkpoint import load_weights, read_model_file, save_state
 
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kpcn/1"
@@ -364,8 +364,7 @@ class KpcnModel(nn.Module):
     # --- files -----------------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the model file atomically."""
-        state = {k: v.detach().cpu() for k, v in self.state_dict().items()}
-        save_state({"card": self.card.to_dict(), "state": state}, path)
+        save_model(self.card.to_dict(), self, path)
 
     @staticmethod
     def load(path: str | os.PathLike[str]) -> KpcnModel:

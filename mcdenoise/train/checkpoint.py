@@ -10,9 +10,10 @@ Layout of ``runs/NAME/``::
 
 Every file is written atomically (:func:`mcdenoise.io.atomic.atomic_path`), and ``latest`` is
 rewritten only after the checkpoint it names is complete, so a run killed at any moment resumes
-from a whole checkpoint. Checkpoints are read with ``torch.load(weights_only=True)`` (no
-pickled code runs); a truncated or corrupt one is a :class:`CheckpointError` naming the file
-and the previous checkpoint, which is kept (``checkpoints_kept`` newest files).
+from a whole checkpoint. Checkpoints are read with :func:`mcdenoise.modelfile.load_state`
+(``torch.load(weights_only=True)``: no pickled code runs); a truncated or corrupt one is a
+:class:`~mcdenoise.modelfile.CheckpointError` naming the file and the previous checkpoint,
+which is kept (``checkpoints_kept`` newest files).
 """
 
 from __future__ import annotations
@@ -23,64 +24,10 @@ import re
 from pathlib import Path
 from typing import Any
 
-import torch
-
-from mcdenoise.errors import McdenoiseError
-from mcdenoise.io.atomic import atomic_path, write_text_atomic
+from mcdenoise.io.atomic import write_text_atomic
+from mcdenoise.modelfile import RUN_MODEL, CheckpointError, load_state, save_state
 
 _STEP_FILE = re.compile(r"^step_(\d+)\.pt$")
-
-
-class CheckpointError(McdenoiseError, OSError):
-    """A run folder or checkpoint is missing, truncated or not ours."""
-
-
-def load_state(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """``torch.load(path, weights_only=True)``, errors turned into one-line CheckpointErrors."""
-    p = Path(path)
-    if not p.is_file():
-        raise CheckpointError(f"{p}: no such checkpoint/model file")
-    try:
-        state = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises RuntimeError, EOFError, UnpicklingError, ...
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise CheckpointError(f"{p}: truncated or corrupt file ({first})") from None
-    if not isinstance(state, dict):
-        raise CheckpointError(f"{p}: not an mcdenoise checkpoint (no state dictionary)")
-    return state
-
-
-def read_model_file(path: str | os.PathLike[str]) -> tuple[Path, dict[str, Any]]:
-    """``(file, state)`` of a model file or a run folder's ``model.pt``: a dict with a JSON
-    ``card`` and the weights ``state``.
-
-    Raises:
-        CheckpointError: missing/truncated file, or a file without a model card.
-    """
-    p = Path(path)
-    if p.is_dir():
-        p = p / "model.pt"
-    state = load_state(p)
-    if "card" not in state or "state" not in state:
-        raise CheckpointError(f"{p}: not a model file (no model card)")
-    return p, state
-
-
-def load_weights(module: torch.nn.Module, state: dict[str, Any], path: Path) -> None:
-    """``module.load_state_dict(state)``; a mismatch is a one-line InputError naming ``path``."""
-    from mcdenoise.errors import InputError
-
-    try:
-        module.load_state_dict(state)
-    except RuntimeError as err:
-        first = str(err).splitlines()[0]
-        raise InputError(f"{path}: weights do not match the model card ({first})") from None
-
-
-def save_state(state: dict[str, Any], path: str | os.PathLike[str]) -> None:
-    """``torch.save`` atomically."""
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)
 
 
 class RunFolder:
@@ -95,7 +42,7 @@ class RunFolder:
         self.checkpoints = self.path / "checkpoints"
         self.config_path = self.path / "config.json"
         self.metrics_path = self.path / "metrics.jsonl"
-        self.model_path = self.path / "model.pt"
+        self.model_path = self.path / RUN_MODEL
         self.pointer = self.path / "latest"
 
     def create(self) -> None:
@@ -186,3 +133,6 @@ class RunFolder:
         write_text_atomic(
             self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in kept)
         )
+
+
+__all__ = ["CheckpointError", "RunFolder", "load_state", "save_state"]

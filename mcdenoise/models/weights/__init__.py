@@ -13,10 +13,10 @@ import hashlib
 import os
 from pathlib import Path
 
+from mcdenoise.modelfile import CheckpointError, model_file, read_card
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.kpcn import FORMAT as KPCN_FORMAT
 from mcdenoise.models.kpcn import KpcnModel
-from mcdenoise.train.checkpoint import CheckpointError, load_state
 
 WEIGHTS = Path(__file__).resolve().parent
 #: ``model`` parameter value of the learned methods meaning "the weights shipped here".
@@ -59,7 +59,7 @@ def weights_digest(method: str, model: str) -> str:
     parts = []
     for path in paths:
         try:
-            p = _model_file(path)
+            p = model_file(path)
         except CheckpointError:
             parts.append("missing")
             continue
@@ -73,15 +73,6 @@ def _load(path: str, mtime_ns: int, kind: str) -> KalantariModel | KpcnModel:
     return KpcnModel.load(path) if kind == "kpcn" else KalantariModel.load(path)
 
 
-def _model_file(path: str | os.PathLike[str]) -> Path:
-    p = Path(path)
-    if p.is_dir():
-        p = p / "model.pt"
-    if not p.is_file():
-        raise CheckpointError(f"{path}: no such model file or run folder (with model.pt)")
-    return p
-
-
 def load_kalantari(path: str | os.PathLike[str]) -> KalantariModel:
     """The Kalantari model in ``path`` (a model file or a run folder), cached.
 
@@ -89,22 +80,19 @@ def load_kalantari(path: str | os.PathLike[str]) -> KalantariModel:
         CheckpointError: no such file/folder, or a truncated file. InputError: not a model
         of a compatible feature set (the message names the difference).
     """
-    p = _model_file(path)
+    p = model_file(path)
     return _load(str(p.resolve()), p.stat().st_mtime_ns, "kalantari")  # type: ignore[return-value]
 
 
 def load_kpcn(path: str | os.PathLike[str]) -> KpcnModel:
     """The kpcn model in ``path`` (a model file or a run folder), cached (same errors)."""
-    p = _model_file(path)
+    p = model_file(path)
     return _load(str(p.resolve()), p.stat().st_mtime_ns, "kpcn")  # type: ignore[return-value]
 
 
 def model_method(path: str | os.PathLike[str]) -> str:
     """The method a model file belongs to: ``kpcn``, ``kalantari-xbf`` or ``kalantari-nlm``."""
-    state = load_state(_model_file(path))
-    card = state.get("card")
-    if not isinstance(card, dict):
-        raise CheckpointError(f"{path}: not a model file (no model card)")
+    card = read_card(path)
     if card.get("format") == KPCN_FORMAT:
         return "kpcn"
     return f"kalantari-{card.get('kind', 'xbf')}"
