@@ -78,84 +78,28 @@ def denoise(
     Each output keeps the input's size and records the method, its parameters, the source file
     and the seconds the method took in its header (see `mcdenoise info OUT.exr`).
     """
-    from pathlib import Path
-
     from mcdenoise import denoise as dn
-    from mcdenoise.io import load_buffers
-    from mcdenoise.io.buffers import MissingFeatureError
-    from mcdenoise.registry import best_method
 
-    files = dn.collect_inputs(inputs)
-    if model is not None and method == "auto":
-        from mcdenoise.models.weights import model_method
-
-        method = model_method(model)  # the model file says which method
-    chosen = dn.parse_methods(method)
-    overrides = dn.params_from_strings(params)
-    if model is not None:
-        learned = [m.name for m in chosen if "model" in m.defaults]
-        if len(chosen) != 1 or not learned:
-            raise click.UsageError(
-                "--model needs exactly one learned --method (e.g. --method kpcn)"
-            )
-        overrides["model"] = model
-    if overrides and len(chosen) != 1:
-        raise click.UsageError("--param needs exactly one --method")
-    for m in chosen:
-        m.resolve_params(overrides)  # fail on a bad --param before reading anything
-    if len(chosen) > 1 and output is not None and Path(output).suffix.lower() == ".exr":
-        raise click.UsageError("several methods write several files: give -o a folder")
-    if overrides and method == "auto":
-        raise click.UsageError(
-            "--param needs an explicit --method (the default depends on the input)"
-        )
     read = dn.ReadOptions(profile=profile, mapping=mapping, part=part, spp=spp)
-    jobs: list = []
-    if method == "auto":  # decided per input, when it is read: the best method it can feed
-        dn.plan_outputs(files, output, "auto", part=part)  # refuses -o x.exr for several inputs
-        jobs = [(src, None, None) for src in files]
-    else:
-        for m in chosen:
-            outs = dn.plan_outputs(files, output, m.name, part=part)
-            jobs += [(src, dst, m) for src, dst in zip(files, outs)]
-    if output is not None and Path(output).suffix.lower() != ".exr":
-        Path(output).mkdir(parents=True, exist_ok=True)
     write = dn.WriteOptions(half=half, compression=compression)
-    skip_missing = method == "all"
-    bar = tqdm(jobs, desc="denoise", unit="img", disable=len(jobs) < 2)
-    for src, dst, m in bar:
-        buffers = None
-        if m is None:
-            buffers = load_buffers(src, profile=profile, mapping=mapping, part=part, spp=spp)
-            m = best_method(buffers)
-            dst = dn.plan_outputs([src], output, m.name, part=part)[0]
-        bar.set_postfix_str(f"{src.name} {m.name}")
-        try:
-            res = dn.denoise_file(
-                src,
-                dst,
-                m,
-                params=overrides,
-                device=device,
-                read=read,
-                write=write,
-                buffers=buffers,
-            )
-        except MissingFeatureError as err:
-            if not skip_missing:
-                raise
-            tqdm.write(f"skipped {m.name} on {src.name}: {err}")
-            continue
-        if as_json:
-            click.echo(json.dumps(res.to_dict()))
+    try:
+        outcomes = dn.denoise_paths(
+            inputs,
+            output,
+            method,
+            params=dn.params_from_strings(params),
+            model=model,
+            device=device,
+            read=read,
+            write=write,
+        )
+    except dn.OptionError as err:
+        raise click.UsageError(str(err)) from None
+    for outcome in outcomes:
+        if outcome.result is not None and as_json:
+            click.echo(json.dumps(outcome.result.to_dict()))
         else:
-            extra = f", {res.clamped} values clamped to the half range" if res.clamped else ""
-            fixed = sum(res.result.repaired.values())
-            extra += f", {fixed} NaN/Inf/negative input values repaired" if fixed else ""
-            tqdm.write(
-                f"{dst}  [{res.result.method}, {res.result.seconds:.2f} s on "
-                f"{res.result.device}{extra}]"
-            )
+            tqdm.write(outcome.summary())
 
 
 @click.command("methods")

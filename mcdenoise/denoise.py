@@ -1,16 +1,20 @@
-"""The one entry point every front end calls: ``denoise`` (in memory) and ``denoise_file``.
+"""The one entry point every front end calls: a sequence of frames in, one result per frame.
 
-``mcdenoise denoise``, ``mcdenoise eval`` and the experiment runner all go through
-:func:`denoise` (in memory) or :func:`denoise_file` (EXR in, EXR out), so a method registered
-in :mod:`mcdenoise.registry` (see there for what a method is) is available everywhere.
+:func:`denoise_sequence` denoises the frames of one sequence with one method; :func:`denoise`
+is its one-frame case and :func:`denoise_file` reads and writes EXR files around it.
+``mcdenoise denoise`` (:func:`denoise_paths`), ``mcdenoise eval --experiment`` and the
+experiment runner all come through here, so a method registered in :mod:`mcdenoise.registry`
+(see :mod:`mcdenoise.method` for what a method is: per-frame or temporal) is available
+everywhere, with the same input sanitising, checks, timing and output repair.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,9 +22,8 @@ from typing import Any
 import torch
 
 from mcdenoise import __version__
-from mcdenoise import methods as _builtin_methods  # noqa: F401  (registers the built-ins)
 from mcdenoise.errors import InputError
-from mcdenoise.io.buffers import FeatureBuffers, sanitize
+from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError, sanitize
 from mcdenoise.registry import (
     Method,
     available_methods,
@@ -32,9 +35,13 @@ from mcdenoise.registry import (
 )
 
 __all__ = [
+    "DenoiseJob",
+    "DenoisePlan",
     "DenoiseResult",
     "FileResult",
+    "JobOutcome",
     "Method",
+    "OptionError",
     "ReadOptions",
     "WriteOptions",
     "available_methods",
@@ -42,14 +49,22 @@ __all__ = [
     "collect_inputs",
     "denoise",
     "denoise_file",
+    "denoise_paths",
+    "denoise_sequence",
     "get_method",
     "methods",
     "params_from_strings",
     "parse_methods",
+    "plan_jobs",
     "plan_outputs",
     "register",
     "resolve_device",
+    "run_jobs",
 ]
+
+
+class OptionError(InputError):
+    """Options that cannot work together (``mcdenoise denoise`` reports it as a usage error)."""
 
 
 def parse_methods(spec: str) -> list[Method]:
@@ -120,37 +135,120 @@ def denoise(
 ) -> DenoiseResult:
     """Denoise one image held in ``buffers`` with ``method`` ("auto" = best available).
 
-    The input is sanitised first (NaN/Inf repaired, see :func:`mcdenoise.io.sanitize`); the
-    output is float32 ``(3, H, W)`` on the CPU, finite and clamped at 0.
+    The one-frame case of :func:`denoise_sequence`: the input is sanitised first (NaN/Inf
+    repaired, see :func:`mcdenoise.io.sanitize`); the output is float32 ``(3, H, W)`` on the
+    CPU, finite and clamped at 0.
     """
+    (result,) = denoise_sequence([buffers], method, params=params, device=device)
+    return result
+
+
+def denoise_sequence(
+    frames: Iterable[FeatureBuffers],
+    method: str | Method = "auto",
+    *,
+    params: Mapping[str, Any] | None = None,
+    device: str | torch.device = "auto",
+) -> Iterator[DenoiseResult]:
+    """Denoise the frames of one sequence, in order, with one method: one result per frame.
+
+    A per-frame method denoises each frame on its own; a temporal method
+    (:attr:`Method.temporal <mcdenoise.method.Method.temporal>`) receives the frames in order
+    and may carry state from one frame to the next. ``frames`` may be lazy (read from disk as
+    they are needed); each frame is sanitised, cut to the buffers the method requires or uses,
+    and moved to ``device`` when the method asks for it.
+
+    The method (``"auto"``: the best available for the first frame), its availability, the
+    buffers of the first frame, the parameters and the device are checked before this returns;
+    every later frame must hold the required buffers too (``MissingFeatureError`` when it is
+    reached). Each result's ``seconds`` is the wall time of the method for that frame, without
+    reading or sanitising frames; its ``image`` is float32 ``(3, H, W)`` linear HDR RGB on the
+    CPU, finite and clamped at 0; ``repaired`` counts the NaN/Inf/negative values repaired in
+    that frame.
+
+    Raises:
+        InputError: unknown or unavailable method, bad parameter, device the method does not
+            support; ``MissingFeatureError`` (an ``InputError``) for a missing buffer.
+    """
+    source = iter(frames)
+    first = next(source, None)
+    if first is None:
+        return iter(())
     m = (
-        best_method(buffers)
+        best_method(first)
         if method == "auto"
         else (method if isinstance(method, Method) else get_method(method))
     )
     reason = m.unavailable()
     if reason:
         raise InputError(f"method {m.name!r} is not available: {reason}")
-    buffers.require(m.requires, needed_by=f"method {m.name!r}")
+    first.require(m.requires, needed_by=f"method {m.name!r}")
     resolved = m.resolve_params(params)
     dev = resolve_device(device)
     if dev.type not in m.devices:
         raise InputError(f"method {m.name!r} does not run on {dev.type}")
-    clean, repaired = sanitize(buffers.subset(set(m.requires) | set(m.uses)))
-    clean = clean.to(dev)
-    if dev.type == "cuda":
-        torch.cuda.synchronize(dev)
-    start = time.perf_counter()
-    with torch.no_grad():
-        out = m.run(clean, resolved, dev)
-    if dev.type == "cuda":
-        torch.cuda.synchronize(dev)
-    seconds = time.perf_counter() - start
-    out = torch.nan_to_num(out.detach().to("cpu", torch.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    out = out.clamp_min(0.0)
-    if tuple(out.shape) != (3, *buffers.shape):
-        raise RuntimeError(f"method {m.name} returned shape {tuple(out.shape)}")
-    return DenoiseResult(out, m.name, resolved, seconds, str(dev), repaired)
+    return _run_sequence(m, itertools.chain([first], source), resolved, dev)
+
+
+_END = object()
+
+
+def _run_sequence(
+    m: Method, frames: Iterator[FeatureBuffers], params: dict[str, Any], dev: torch.device
+) -> Iterator[DenoiseResult]:
+    """The results of ``m`` on ``frames`` (checked by :func:`denoise_sequence`)."""
+    needed = set(m.requires) | set(m.uses)
+    shapes: list[tuple[int, int]] = []  # (H, W) of each frame handed to the method
+    repairs: list[dict[str, int]] = []
+    prep_seconds = [0.0]  # time spent reading and preparing frames, not the method's own
+
+    def prepared() -> Iterator[FeatureBuffers]:
+        while True:
+            start = time.perf_counter()
+            buffers = next(frames, _END)
+            if buffers is _END:
+                return
+            assert isinstance(buffers, FeatureBuffers)
+            buffers.require(m.requires, needed_by=f"method {m.name!r}")
+            clean, repaired = sanitize(buffers.subset(needed))
+            clean = clean.to(dev)
+            if dev.type == "cuda":
+                torch.cuda.synchronize(dev)
+            shapes.append(buffers.shape)
+            repairs.append(repaired)
+            prep_seconds[0] += time.perf_counter() - start
+            yield clean
+
+    outputs = m.run_frames(prepared(), params, dev)
+    try:
+        for index in itertools.count():
+            if dev.type == "cuda":
+                torch.cuda.synchronize(dev)
+            prep_before = prep_seconds[0]
+            start = time.perf_counter()
+            try:
+                with torch.no_grad():  # the method's code runs inside this call
+                    out = next(outputs)
+            except StopIteration:
+                if index < len(shapes) or next(frames, _END) is not _END:
+                    raise RuntimeError(
+                        f"method {m.name} returned {index} outputs for a longer sequence"
+                    ) from None
+                return
+            if dev.type == "cuda":
+                torch.cuda.synchronize(dev)
+            seconds = time.perf_counter() - start - (prep_seconds[0] - prep_before)
+            if index >= len(shapes):
+                raise RuntimeError(f"method {m.name} returned more outputs than frames")
+            out = out.detach().to("cpu", torch.float32)
+            out = torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
+            if tuple(out.shape) != (3, *shapes[index]):
+                raise RuntimeError(f"method {m.name} returned shape {tuple(out.shape)}")
+            yield DenoiseResult(out, m.name, dict(params), seconds, str(dev), repairs[index])
+    finally:
+        close = getattr(outputs, "close", None)
+        if close is not None:
+            close()
 
 
 # --- files ----------------------------------------------------------------------------------
@@ -317,3 +415,200 @@ def plan_outputs(
     if len(set(outs)) != len(outs):
         raise InputError("two inputs would write the same output name; use separate folders")
     return outs
+
+
+# --- jobs: many inputs, one or several methods ----------------------------------------------
+
+
+@dataclass(frozen=True)
+class DenoiseJob:
+    """One output to make: ``input`` denoised with ``method`` into ``output``.
+
+    With ``--method auto`` both are ``None`` until the input is read: the method is then the
+    best one its buffers can feed, and the output is named after it.
+    """
+
+    input: Path
+    output: Path | None
+    method: Method | None
+
+
+@dataclass
+class JobOutcome:
+    """What became of one :class:`DenoiseJob`: its file result, or why it was skipped."""
+
+    job: DenoiseJob  # method and output resolved
+    result: FileResult | None = None
+    skipped: str | None = None  # with --method all: the buffer the method lacked
+
+    def summary(self) -> str:
+        """The line ``mcdenoise denoise`` prints for this outcome."""
+        src, m = self.job.input, self.job.method
+        if self.result is None:
+            return f"skipped {m.name if m else '?'} on {src.name}: {self.skipped}"
+        res = self.result
+        extra = f", {res.clamped} values clamped to the half range" if res.clamped else ""
+        fixed = sum(res.result.repaired.values())
+        extra += f", {fixed} NaN/Inf/negative input values repaired" if fixed else ""
+        return (
+            f"{res.output}  [{res.result.method}, {res.result.seconds:.2f} s on "
+            f"{res.result.device}{extra}]"
+        )
+
+
+@dataclass
+class DenoisePlan:
+    """The jobs of one ``mcdenoise denoise`` call and the settings they share."""
+
+    jobs: list[DenoiseJob]
+    params: dict[str, Any]  # parameter overrides (one method only)
+    output: Path | None  # -o: a file (one output) or a folder (created when run)
+    part: str | None  # the level of a multi-part input (part of the output names)
+    skip_missing: bool  # --method all: skip a method whose buffers an input lacks
+
+
+def plan_jobs(
+    inputs: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str] | None = None,
+    method: str = "auto",
+    *,
+    params: Mapping[str, Any] | None = None,
+    model: str | None = None,
+    part: str | None = None,
+) -> DenoisePlan:
+    """Check the options of ``mcdenoise denoise`` and plan its outputs; nothing is read yet.
+
+    Args:
+        inputs: EXR files and folders of them (see :func:`collect_inputs`).
+        output: one output file (one input, one method), a folder, or ``None`` (outputs beside
+            the inputs); names as in :func:`plan_outputs`.
+        method: ``auto`` (the best method for each input, chosen when it is read), ``all``
+            (every available method; one that lacks a buffer of an input is skipped there), a
+            name or a comma-separated list.
+        params: parameter overrides (one method only; not with ``auto`` unless ``model``
+            names the method).
+        model: a trained model (run folder or model file) for a learned method: the same as
+            ``params["model"]``; with ``method="auto"`` the model file names the method.
+        part: the level of multi-part inputs to read (``spp16``); part of the output names.
+
+    Raises:
+        OptionError: options that do not go together (several methods with one parameter
+            set or one output file, ``--model`` with a method that takes no model, ...).
+        InputError: a missing input, an unknown or unavailable method, a bad parameter.
+    """
+    files = collect_inputs(inputs)
+    if model is not None and method == "auto":
+        from mcdenoise.models.weights import model_method
+
+        method = model_method(model)  # the model file says which method
+    chosen = parse_methods(method)
+    overrides = dict(params or {})
+    if model is not None:
+        learned = [m.name for m in chosen if "model" in m.defaults]
+        if len(chosen) != 1 or not learned:
+            raise OptionError("--model needs exactly one learned --method (e.g. --method kpcn)")
+        overrides["model"] = model
+    if overrides and len(chosen) != 1:
+        raise OptionError("--param needs exactly one --method")
+    for m in chosen:
+        m.resolve_params(overrides)  # fail on a bad --param before reading anything
+    if len(chosen) > 1 and output is not None and Path(output).suffix.lower() == ".exr":
+        raise OptionError("several methods write several files: give -o a folder")
+    if overrides and method == "auto":
+        raise OptionError("--param needs an explicit --method (the default depends on the input)")
+    jobs: list[DenoiseJob] = []
+    if method == "auto":  # decided per input, when it is read: the best method it can feed
+        plan_outputs(files, output, "auto", part=part)  # refuses -o x.exr for several inputs
+        jobs = [DenoiseJob(src, None, None) for src in files]
+    else:
+        for m in chosen:
+            outs = plan_outputs(files, output, m.name, part=part)
+            jobs += [DenoiseJob(src, dst, m) for src, dst in zip(files, outs)]
+    return DenoisePlan(
+        jobs,
+        overrides,
+        None if output is None else Path(output),
+        part,
+        skip_missing=method == "all",
+    )
+
+
+def run_jobs(
+    plan: DenoisePlan,
+    *,
+    device: str | torch.device = "auto",
+    read: ReadOptions | None = None,
+    write: WriteOptions | None = None,
+    progress: bool = True,
+) -> Iterator[JobOutcome]:
+    """Run the jobs of ``plan`` one after the other (each through :func:`denoise_file`).
+
+    Creates the output folder first. Yields each job's outcome as soon as its file is
+    written; with ``progress`` a tqdm bar (stderr) counts the jobs when there are several.
+    """
+    from tqdm import tqdm
+
+    from mcdenoise.io import load_buffers
+
+    read = read or ReadOptions()
+    out = plan.output
+    if out is not None and out.suffix.lower() != ".exr":
+        out.mkdir(parents=True, exist_ok=True)
+    bar = tqdm(plan.jobs, desc="denoise", unit="img", disable=not progress or len(plan.jobs) < 2)
+    try:
+        for job in bar:
+            buffers = None
+            if job.method is None:
+                buffers = load_buffers(
+                    job.input,
+                    profile=read.profile,
+                    mapping=read.mapping,
+                    part=read.part,
+                    spp=read.spp,
+                )
+                m = best_method(buffers)
+                dst = plan_outputs([job.input], out, m.name, part=plan.part)[0]
+                job = DenoiseJob(job.input, dst, m)
+            assert job.method is not None and job.output is not None
+            bar.set_postfix_str(f"{job.input.name} {job.method.name}")
+            try:
+                res = denoise_file(
+                    job.input,
+                    job.output,
+                    job.method,
+                    params=plan.params,
+                    device=device,
+                    read=read,
+                    write=write,
+                    buffers=buffers,
+                )
+            except MissingFeatureError as err:
+                if not plan.skip_missing:
+                    raise
+                yield JobOutcome(job, skipped=str(err))
+                continue
+            yield JobOutcome(job, res)
+    finally:
+        bar.close()
+
+
+def denoise_paths(
+    inputs: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str] | None = None,
+    method: str = "auto",
+    *,
+    params: Mapping[str, Any] | None = None,
+    model: str | None = None,
+    device: str | torch.device = "auto",
+    read: ReadOptions | None = None,
+    write: WriteOptions | None = None,
+    progress: bool = True,
+) -> Iterator[JobOutcome]:
+    """``mcdenoise denoise``: :func:`plan_jobs` now (every option checked before any file is
+    read), then the iterator of :func:`run_jobs` over the outcomes.
+
+    ``read.part`` is the level read from multi-part inputs and part of the output names.
+    """
+    read = read or ReadOptions()
+    plan = plan_jobs(inputs, output, method, params=params, model=model, part=read.part)
+    return run_jobs(plan, device=device, read=read, write=write, progress=progress)

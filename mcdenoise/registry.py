@@ -1,7 +1,9 @@
-"""The method registry: what a denoising method is, and the table of registered methods.
+"""The table of denoising methods: register, list, look up, choose the default.
 
-Built-in methods register themselves in :mod:`mcdenoise.methods`; :mod:`mcdenoise.denoise`
-imports that module, so going through ``mcdenoise.denoise`` always sees them.
+What a method is (per-frame or temporal) is :class:`~mcdenoise.method.Method`, re-exported
+here. The built-in methods are loaded explicitly on first use of the table
+(:func:`mcdenoise.methods.builtin_methods`), so :func:`methods` lists the same methods in the
+same order whichever module was imported first.
 
 Adding a method::
 
@@ -11,85 +13,70 @@ Adding a method::
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
-from typing import Any
-
-import torch
+from collections.abc import Iterable
 
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.method import (
+    Method,
+    RunFn,
+    SequenceFn,
+    dataclass_defaults,
+    params_from_strings,
+)
 
-RunFn = Callable[[FeatureBuffers, Mapping[str, Any], torch.device], torch.Tensor]
-
-
-@dataclass(frozen=True)
-class Method:
-    """A registered denoiser.
-
-    Attributes:
-        name: registry key used by ``--method``.
-        summary: one line for ``mcdenoise methods``.
-        requires: buffers the method cannot run without (``MissingFeatureError`` otherwise).
-        uses: buffers it uses when present.
-        defaults: tunable parameters and their defaults (``--param key=value`` overrides;
-            values are coerced to the default's type).
-        run: ``run(buffers, params, device) -> (3, H, W)`` linear HDR RGB on any device.
-            ``buffers`` are sanitised (no NaN/Inf) and on ``device``.
-        priority: higher wins when the user gives no ``--method``.
-        unavailable: returns ``None`` when the method can run here, else a reason.
-        devices: devices the method supports (``"cpu"``, ``"cuda"``).
-    """
-
-    name: str
-    summary: str
-    requires: tuple[str, ...]
-    uses: tuple[str, ...]
-    defaults: Mapping[str, Any]
-    run: RunFn
-    priority: int = 0
-    unavailable: Callable[[], str | None] = field(default=lambda: None)
-    devices: tuple[str, ...] = ("cpu", "cuda")
-
-    def resolve_params(self, overrides: Mapping[str, Any] | None) -> dict[str, Any]:
-        """Defaults updated with ``overrides`` (strings coerced to the default's type)."""
-        params = dict(self.defaults)
-        for key, value in (overrides or {}).items():
-            if key not in params:
-                known = ", ".join(sorted(params)) or "none"
-                raise InputError(f"method {self.name!r} has no parameter {key!r} (known: {known})")
-            params[key] = _coerce(key, value, params[key])
-        return params
-
-
-def _coerce(key: str, value: Any, default: Any) -> Any:
-    if not isinstance(value, str) or isinstance(default, str):
-        return value
-    if isinstance(default, tuple):  # comma-separated list, e.g. features=albedo,normal
-        return tuple(v.strip() for v in value.split(",") if v.strip())
-    try:
-        if isinstance(default, bool):
-            low = value.lower()
-            if low not in ("1", "0", "true", "false", "yes", "no"):
-                raise ValueError(value)
-            return low in ("1", "true", "yes")
-        if isinstance(default, int):
-            return int(value)
-        if isinstance(default, float) or default is None:
-            return float(value)
-    except ValueError:
-        kind = type(default).__name__ if default is not None else "number"
-        raise InputError(f"parameter {key}={value!r} is not a valid {kind}") from None
-    return value
-
+__all__ = [
+    "Method",
+    "RunFn",
+    "SequenceFn",
+    "available_methods",
+    "best_method",
+    "dataclass_defaults",
+    "get_method",
+    "methods",
+    "params_from_strings",
+    "register",
+]
 
 _REGISTRY: dict[str, Method] = {}
 _ALIASES: dict[str, str] = {}
+#: "no" (built-ins not loaded yet), "loading" (their modules are being imported), "done".
+_builtins = {"state": "no"}
+
+
+def _ensure_builtins() -> None:
+    """Add the built-in methods to the table, once, before anything reads or changes it.
+
+    An entry already in the table keeps its place (a method registered, or a test's stand-in,
+    is never replaced by a built-in of the same name).
+    """
+    if _builtins["state"] != "no":
+        return
+    _builtins["state"] = "loading"
+    try:
+        try:
+            from mcdenoise.methods import builtin_methods
+        except ImportError:
+            # Until mcdenoise.methods is the package with builtin_methods(), the old module
+            # registers the built-ins when it is imported (done by the line above).
+            import mcdenoise.methods  # noqa: F401
+
+            def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
+                return []
+
+        for method, aliases in builtin_methods():
+            _REGISTRY.setdefault(method.name, method)
+            for alias in aliases:
+                _ALIASES.setdefault(alias, method.name)
+    except BaseException:
+        _builtins["state"] = "no"  # the next call raises the same error again
+        raise
+    _builtins["state"] = "done"
 
 
 def register(method: Method, *, aliases: Iterable[str] = ()) -> Method:
-    """Add ``method`` to the registry (replacing one of the same name)."""
+    """Add ``method`` to the registry (replacing one of the same name, built-ins included)."""
+    _ensure_builtins()
     _REGISTRY[method.name] = method
     for alias in aliases:
         _ALIASES[alias] = method.name
@@ -97,12 +84,14 @@ def register(method: Method, *, aliases: Iterable[str] = ()) -> Method:
 
 
 def methods() -> list[Method]:
-    """All registered methods, best first."""
+    """All registered methods, best first (priority, then name)."""
+    _ensure_builtins()
     return sorted(_REGISTRY.values(), key=lambda m: (-m.priority, m.name))
 
 
 def get_method(name: str) -> Method:
     """The method called ``name`` (or an alias); ``InputError`` listing the known ones."""
+    _ensure_builtins()
     key = _ALIASES.get(name, name)
     if key not in _REGISTRY:
         known = ", ".join(m.name for m in methods())
@@ -121,19 +110,3 @@ def best_method(buffers: FeatureBuffers | None = None) -> Method:
         if buffers is None or all(r in buffers for r in m.requires):
             return m
     raise InputError("no denoising method can run on this input")
-
-
-def params_from_strings(items: Iterable[str], option: str = "--param") -> dict[str, str]:
-    """Parse ``key=value`` strings (from ``option``, e.g. ``--param``) into a dict."""
-    out: dict[str, str] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"{option} expects key=value, got {item!r}")
-        out[key.strip()] = value.strip()
-    return out
-
-
-def dataclass_defaults(cls: type) -> dict[str, Any]:
-    """Defaults of a parameter dataclass as a plain dict (for :attr:`Method.defaults`)."""
-    return {f.name: f.default for f in dataclasses.fields(cls)}

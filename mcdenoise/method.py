@@ -1,0 +1,156 @@
+"""What a denoising method is: the :class:`Method` contract, per-frame or temporal.
+
+A method turns :class:`~mcdenoise.io.FeatureBuffers` into a denoised colour image. It is one
+of two kinds:
+
+* **per-frame** (``temporal=False``, the default): ``run(buffers, params, device)`` denoises
+  one image; a sequence is denoised frame by frame, each frame on its own.
+* **temporal** (``temporal=True``): ``run_sequence(frames, params, device)`` is a generator
+  that receives the frames of *one* sequence in order and yields one output per frame. It may
+  keep whatever state it needs between frames (a history buffer, the previous output, a
+  moving average); it may read frame ``t + 1`` before yielding the output of frame ``t``. The
+  motion buffers (``motion``, ``motion_valid``: see :mod:`mcdenoise.io.buffers`) reach it when
+  the method lists them in ``requires`` or ``uses``.
+
+Every frame a method sees is sanitised (no NaN/Inf, see :func:`mcdenoise.io.sanitize`), holds
+only the buffers of ``requires`` and ``uses`` that the input has, and is on ``device``. Every
+output is ``(3, H, W)`` linear HDR RGB on any device;
+:func:`mcdenoise.denoise.denoise_sequence` moves it to the CPU, repairs and clamps it.
+
+This module is the contract only; :mod:`mcdenoise.registry` holds the table of methods (and
+re-exports these names), :mod:`mcdenoise.methods` the built-in ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from mcdenoise.errors import InputError
+from mcdenoise.io.buffers import FeatureBuffers
+
+#: ``run(buffers, params, device) -> (3, H, W)``: one frame.
+RunFn = Callable[[FeatureBuffers, Mapping[str, Any], torch.device], torch.Tensor]
+#: ``run_sequence(frames, params, device)`` yields one ``(3, H, W)`` per frame, in order.
+SequenceFn = Callable[
+    [Iterable[FeatureBuffers], Mapping[str, Any], torch.device], Iterator[torch.Tensor]
+]
+
+
+@dataclass(frozen=True)
+class Method:
+    """A denoiser that can be registered (:func:`mcdenoise.registry.register`).
+
+    Attributes:
+        name: registry key used by ``--method``.
+        summary: one line for ``mcdenoise methods``.
+        requires: buffers the method cannot run without (``MissingFeatureError`` otherwise).
+        uses: buffers it uses when present.
+        defaults: tunable parameters and their defaults (``--param key=value`` overrides;
+            values are coerced to the default's type).
+        run: ``run(buffers, params, device) -> (3, H, W)`` linear HDR RGB on any device.
+            ``buffers`` are sanitised (no NaN/Inf) and on ``device``. ``None`` for a temporal
+            method that only gives ``run_sequence``.
+        priority: higher wins when the user gives no ``--method``.
+        unavailable: returns ``None`` when the method can run here, else a reason.
+        devices: devices the method supports (``"cpu"``, ``"cuda"``).
+        temporal: the output of a frame depends on other frames of its sequence; the method
+            gives ``run_sequence``.
+        run_sequence: ``run_sequence(frames, params, device)``: a generator over the frames
+            of one sequence (in order) yielding one ``(3, H, W)`` output per frame. Required
+            when ``temporal``; a per-frame method leaves it ``None`` and
+            :meth:`run_frames` runs ``run`` on each frame.
+    """
+
+    name: str
+    summary: str
+    requires: tuple[str, ...]
+    uses: tuple[str, ...]
+    defaults: Mapping[str, Any]
+    run: RunFn | None
+    priority: int = 0
+    unavailable: Callable[[], str | None] = field(default=lambda: None)
+    devices: tuple[str, ...] = ("cpu", "cuda")
+    temporal: bool = False
+    run_sequence: SequenceFn | None = None
+
+    def __post_init__(self) -> None:
+        if self.temporal and self.run_sequence is None:
+            raise ValueError(f"method {self.name!r} is temporal but gives no run_sequence")
+        if self.run is None and self.run_sequence is None:
+            raise ValueError(f"method {self.name!r} gives neither run nor run_sequence")
+
+    def run_frames(
+        self, frames: Iterable[FeatureBuffers], params: Mapping[str, Any], device: torch.device
+    ) -> Iterator[torch.Tensor]:
+        """The outputs for ``frames`` (one sequence, in order): ``run_sequence`` when the
+        method gives one, else ``run`` on each frame alone."""
+        if self.run_sequence is not None:
+            return iter(self.run_sequence(frames, params, device))
+        run = self.run
+        assert run is not None  # __post_init__
+        return (run(f, params, device) for f in frames)
+
+    def resolve_params(self, overrides: Mapping[str, Any] | None) -> dict[str, Any]:
+        """Defaults updated with ``overrides`` (strings coerced to the default's type)."""
+        params = dict(self.defaults)
+        for key, value in (overrides or {}).items():
+            if key not in params:
+                known = ", ".join(sorted(params)) or "none"
+                raise InputError(f"method {self.name!r} has no parameter {key!r} (known: {known})")
+            params[key] = _coerce(key, value, params[key])
+        return params
+
+
+def _coerce(key: str, value: Any, default: Any) -> Any:
+    if not isinstance(value, str) or isinstance(default, str):
+        return value
+    if isinstance(default, tuple):  # comma-separated list, e.g. features=albedo,normal
+        return tuple(v.strip() for v in value.split(",") if v.strip())
+    try:
+        if isinstance(default, bool):
+            low = value.lower()
+            if low not in ("1", "0", "true", "false", "yes", "no"):
+                raise ValueError(value)
+            return low in ("1", "true", "yes")
+        if isinstance(default, int):
+            return int(value)
+        if isinstance(default, float) or default is None:
+            return float(value)
+    except ValueError:
+        kind = type(default).__name__ if default is not None else "number"
+        raise InputError(f"parameter {key}={value!r} is not a valid {kind}") from None
+    return value
+
+
+def params_from_strings(items: Iterable[str], option: str = "--param") -> dict[str, str]:
+    """Parse ``key=value`` strings (from ``option``, e.g. ``--param``) into a dict.
+
+    >>> params_from_strings(["radius=7", " k = 0.5 "])
+    {'radius': '7', 'k': '0.5'}
+    """
+    out: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"{option} expects key=value, got {item!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def dataclass_defaults(cls: type) -> dict[str, Any]:
+    """Defaults of a parameter dataclass as a plain dict (for :attr:`Method.defaults`)."""
+    return {f.name: f.default for f in dataclasses.fields(cls)}
+
+
+__all__ = [
+    "Method",
+    "RunFn",
+    "SequenceFn",
+    "dataclass_defaults",
+    "params_from_strings",
+]
