@@ -38,7 +38,8 @@ from mcdenoise.denoise import denoise, get_method
 from mcdenoise.eval.metrics import relmse
 from mcdenoise.io import load_buffers
 from mcdenoise.models.kalantari import prepare_item, settings_class
-from mcdenoise.train.dataset import geometric_mean, load_items, scan_dataset, split_images
+from mcdenoise.stats import geometric_mean
+from mcdenoise.train.dataset import load_items, scan_dataset, split_images
 from mcdenoise.train.grid import GridResult, grid_search
 
 REPO = Path(__file__).resolve().parents[1]

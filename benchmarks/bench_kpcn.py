@@ -81,7 +81,8 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.exr import write_exr
 from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.models.weights import load_kpcn, shipped_model_path
-from mcdenoise.train.dataset import Entry, geometric_mean, scan_dataset
+from mcdenoise.stats import geometric_mean
+from mcdenoise.train.dataset import Entry, scan_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 HELDOUT = REPO / "data" / "generated" / "heldout"
@@ -655,7 +656,7 @@ def print_ablations(
         for s in spps:
             for src in ("full", "basic"):
                 v = runs.relmse.get((s, f"{m.label}|{src}"))
-                g = geometric_mean(v) if v else math.nan
+                g = geometric_mean(v or [])  # nan when the ablation has no image
                 row[f"relmse_{src}_{s}"] = g
                 text += f"{fmt(g):>10}"
         ss = [x for s in spps for x in runs.ssim.get((s, f"{m.label}|full"), [])]

@@ -23,6 +23,7 @@ import torch
 from mcdenoise.denoise import available_methods, denoise, get_method
 from mcdenoise.eval.metrics import relmse
 from mcdenoise.io import load_buffers
+from mcdenoise.stats import geometric_mean
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print("geometric mean over scenes of the relMSE reduction (noisy / method):")
     for (spp, name), fs in sorted(factors.items()):
-        g = math.exp(sum(math.log(f) for f in fs) / len(fs))
+        g = geometric_mean(fs)
         worst = min(fs)
         print(f"  {spp:>3} spp  {name:<16} {g:6.2f}x  (worst scene {worst:.2f}x)")
     return 0

@@ -36,12 +36,14 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from mcdenoise.eval.metrics import RELMSE_EPS, relmse
+from mcdenoise.eval.metrics import relmse
 from mcdenoise.filters.prepare import box_mean
 from mcdenoise.io import load_buffers
+from mcdenoise.losses import relative_squared_error, relmse_map
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
-from mcdenoise.train.dataset import geometric_mean, scan_dataset
+from mcdenoise.stats import geometric_mean
+from mcdenoise.train.dataset import scan_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 STORED = REPO / "benchmarks" / "results" / "kalantari.json"
@@ -92,8 +94,8 @@ def error_maps(
     f = model.filter(batch, offsets)
     fp = model.filter({**batch, "irr": y + PROBE * sig * probe}, offsets)
     div = probe * (fp - f) / a / (PROBE * sig).clamp_min(1e-12)
-    sure = ((f / a - y) ** 2 - var + 2 * var * div) * a**2 / (pilot**2 + RELMSE_EPS)
-    true = (f - ref) ** 2 / (ref**2 + RELMSE_EPS)
+    sure = relative_squared_error(((f / a - y) ** 2 - var + 2 * var * div) * a**2, pilot)
+    true = relmse_map(f, ref)
     return f, true.mean(1, keepdim=True), sure.mean(1, keepdim=True)
 
 

@@ -7,7 +7,8 @@ They are computed in float32 (or float64 if the inputs are) even under autocast.
 
 * ``smape``: ``|d - r| / (|d| + |r| + 0.01)`` (Vogels et al. 2018; OIDN's training uses the
   same ε). Scale-invariant and bounded by 1, so one bright firefly cannot dominate a batch.
-* ``relmse``: ``(d - r)² / (r² + 0.01)`` (the evaluation metric of this package).
+* ``relmse``: ``(d - r)² / (r² + 0.01)`` (the evaluation metric of this package; the numpy
+  twin used for evaluation is :func:`mcdenoise.eval.metrics.relmse`, with the same ε).
 * ``smape+relmse``: their sum. SMAPE alone lets a network keep a rare isolated firefly (its
   cost is bounded by 1 per pixel); the relMSE term makes it expensive, while SMAPE keeps the
   bright, textured regions weighted (relMSE alone favours the dark ones).
@@ -16,6 +17,12 @@ They are computed in float32 (or float64 if the inputs are) even under autocast.
   the noisy input and ``H`` the Heaviside step: a result on the *far side* of the reference from
   the noisy input (over-smoothed past it) costs λ times more, so the network keeps closer to the
   input where it is unsure: more detail, a little more residual noise. λ = 1 is SMAPE.
+
+:func:`crop_log_relmse` (the ``log-relmse`` training loss) is the mean over the crops of a batch
+of ``log(floor + relMSE of the crop)``: every crop counts alike, whatever its brightness.
+
+This module owns the ε of every loss (:data:`RELMSE_EPS`, :data:`SMAPE_EPS`); the evaluation
+metrics import them from here, so a loss and its metric cannot drift apart.
 """
 
 from __future__ import annotations
@@ -25,9 +32,9 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from mcdenoise.eval.metrics import RELMSE_EPS
-
-#: ε of SMAPE (Vogels 2018).
+#: ε of relMSE (Rousselle et al. 2011, Bako et al. 2017): keeps a zero reference finite.
+RELMSE_EPS = 0.01
+#: ε of SMAPE (Vogels et al. 2018; OIDN's training uses the same).
 SMAPE_EPS = 0.01
 
 
@@ -54,11 +61,46 @@ def smape(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tens
         return _masked_mean(smape_map(output, reference), mask)
 
 
+def relative_squared_error(squared_error: Tensor, reference: Tensor) -> Tensor:
+    """A squared error in relMSE units: ``squared_error / (r² + ε)``, elementwise.
+
+    The one place the relMSE normalisation is written for tensors; :func:`relmse_map` gives it
+    the squared error ``(d - r)²``, and an estimator of the squared error (e.g. SURE, or a
+    variance) can be given instead, normalised by a reference-like image ``r``.
+
+    Args:
+        squared_error: any shape broadcastable with ``reference``.
+        reference: linear HDR colour, e.g. ``(B, 3, H, W)``.
+    """
+    return squared_error / (reference.square() + RELMSE_EPS)
+
+
+def relmse_map(output: Tensor, reference: Tensor) -> Tensor:
+    """Per-element relMSE ``(d - r)² / (r² + ε)``, same shape as the inputs (float32 or 64)."""
+    with torch.autocast(output.device.type, enabled=False):
+        d, r = _f32(output), _f32(reference)
+        return relative_squared_error((d - r).square(), r)
+
+
 def relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
     """Mean relMSE ``(d - r)² / (r² + ε)`` over the masked pixels (scalar)."""
     with torch.autocast(output.device.type, enabled=False):
-        d, r = _f32(output), _f32(reference)
-        return _masked_mean((d - r).square() / (r.square() + RELMSE_EPS), mask)
+        return _masked_mean(relmse_map(output, reference), mask)
+
+
+def crop_log_relmse(output: Tensor, reference: Tensor, mask: Tensor, floor: float = 1e-6) -> Tensor:
+    """Mean over the batch of ``log(floor + relMSE of each crop's masked pixels)`` (scalar).
+
+    Args:
+        output, reference: ``(B, 3, H, W)`` linear HDR colour.
+        mask: ``(B, 1, H, W)`` 0/1 weights; a crop without any weight counts as relMSE 0.
+        floor: keeps the log finite for a crop matched exactly.
+    """
+    with torch.autocast(output.device.type, enabled=False):
+        err = relmse_map(output, reference)
+        mask = mask.to(err.dtype)
+        per = (err * mask).sum((1, 2, 3)) / (mask.sum((1, 2, 3)) * err.shape[1]).clamp_min(1.0)
+        return torch.log(per + floor).mean()
 
 
 def smape_relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
@@ -129,8 +171,12 @@ __all__ = [
     "SMAPE_EPS",
     "asymmetric",
     "compute_loss",
+    "crop_log_relmse",
     "l1",
+    "relative_squared_error",
     "relmse",
+    "relmse_map",
     "smape",
     "smape_map",
+    "smape_relmse",
 ]

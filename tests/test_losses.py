@@ -1,18 +1,27 @@
-"""Training losses: hand-computed values, bounds, masks, Vogels' asymmetry, float32 under autocast."""
+"""Training losses: hand-computed values, bounds, masks, Vogels' asymmetry, float32 under autocast,
+and the one relMSE shared with the evaluation metrics."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 import torch
 
+from mcdenoise import losses
+from mcdenoise.eval import metrics
 from mcdenoise.losses import (
     LOSSES,
     RELMSE_EPS,
     SMAPE_EPS,
     asymmetric,
     compute_loss,
+    crop_log_relmse,
     l1,
+    relative_squared_error,
     relmse,
+    relmse_map,
     smape,
     smape_map,
     smape_relmse,
@@ -75,6 +84,87 @@ def test_smape_relmse_is_the_sum_and_makes_a_kept_firefly_expensive() -> None:
     out[..., 3, 4] = 12.7
     assert float(smape(out, ref)) < 1 / 64
     assert float(smape_relmse(out, ref)) > 4000 / 64
+
+
+# --- the one relMSE: per element, per crop, and the same numbers as the metrics ---------------
+
+
+def test_relmse_map_and_relative_squared_error_hand_computed() -> None:
+    d = _pixels(2.0, 0.5, 0.1)
+    r = _pixels(1.0, 0.0, 0.1)
+    m = relmse_map(d, r)
+    assert m.shape == d.shape and m.dtype == torch.float32
+    assert m[0, 0, 0].tolist() == pytest.approx([1 / 1.01, 25.0, 0.0], rel=1e-6)
+    assert torch.equal(relmse(d, r), m.mean())
+    # an estimate of the squared error (e.g. a variance) in relMSE units, against any image
+    var = torch.tensor([0.0101, 0.01])
+    assert relative_squared_error(var, torch.tensor([1.0, 0.0])).tolist() == pytest.approx(
+        [0.01, 1.0], rel=1e-6
+    )
+
+
+def test_the_epsilons_live_in_losses_and_the_metrics_use_them() -> None:
+    assert metrics.RELMSE_EPS is losses.RELMSE_EPS and metrics.SMAPE_EPS is losses.SMAPE_EPS
+    assert metrics.METRICS["relmse"].epsilon == RELMSE_EPS
+    assert metrics.METRICS["smape"].epsilon == SMAPE_EPS
+
+
+def test_torch_and_numpy_relmse_agree() -> None:
+    g = torch.Generator().manual_seed(11)
+    out = 10 ** (torch.rand(3, 9, 11, generator=g, dtype=torch.float64) * 6 - 3)
+    ref = 10 ** (torch.rand(3, 9, 11, generator=g, dtype=torch.float64) * 6 - 3)
+    ref[:, :2] = 0.0  # zero reference pixels stay finite in both
+    want = metrics.relmse(out.numpy(), ref.numpy())
+    assert math.isfinite(want)
+    assert float(relmse(out[None], ref[None])) == pytest.approx(want, rel=1e-12)
+    assert relmse_map(out, ref).mean(0).numpy() == pytest.approx(
+        metrics.relmse_map(out, ref), rel=1e-12
+    )
+    sq = (out - ref).square()
+    np.testing.assert_array_equal(
+        relative_squared_error(sq, ref).numpy(),
+        metrics.relative_squared_error(sq.numpy(), ref.numpy()),
+    )
+
+
+def test_relmse_ignores_masked_out_pixels() -> None:
+    ref = torch.ones(1, 3, 4, 4)
+    out = ref.clone()
+    out[..., 0, 0] = 100.0
+    mask = torch.ones(1, 1, 4, 4)
+    mask[..., 0, 0] = 0
+    assert float(relmse(out, ref, mask)) == 0.0
+    assert float(relmse(out, ref)) > 0
+
+
+def test_crop_log_relmse_is_the_mean_log_of_each_crops_masked_relmse() -> None:
+    g = torch.Generator().manual_seed(12)
+    d, r = torch.rand(3, 3, 6, 6, generator=g), torch.rand(3, 3, 6, 6, generator=g)
+    mask = (torch.rand(3, 1, 6, 6, generator=g) < 0.5).float()
+    mask[2] = 0.0  # a crop without weight counts as relMSE 0: log(floor)
+    per = [float(relmse(d[i : i + 1], r[i : i + 1], mask[i : i + 1])) for i in range(3)]
+    assert per[2] == 0.0
+    want = sum(math.log(p + 1e-6) for p in per) / 3
+    assert float(crop_log_relmse(d, r, mask)) == pytest.approx(want, rel=1e-5)
+    assert float(crop_log_relmse(r, r, torch.ones_like(mask), floor=1e-3)) == pytest.approx(
+        math.log(1e-3), rel=1e-6
+    )
+    # every crop counts alike: a crop 100x worse moves the loss by log(100) / 3, not 100x
+    d2 = d.clone()
+    d2[0] = r[0] + 10 * (d[0] - r[0])
+    delta = float(crop_log_relmse(d2, r, mask)) - float(crop_log_relmse(d, r, mask))
+    assert delta == pytest.approx(math.log(100) / 3, rel=1e-3)
+
+
+def test_crop_log_relmse_is_float32_under_bf16_autocast() -> None:
+    g = torch.Generator().manual_seed(13)
+    d, r = (1e5 * torch.rand(2, 3, 6, 6, generator=g) for _ in range(2))
+    mask = torch.ones(2, 1, 6, 6)
+    db, rb = d.bfloat16(), r.bfloat16()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = crop_log_relmse(db, rb, mask)
+    assert got.dtype == torch.float32
+    assert float(got) == pytest.approx(float(crop_log_relmse(db.float(), rb.float(), mask)))
 
 
 # --- SMAPE bounds ----------------------------------------------------------------------------

@@ -43,11 +43,8 @@ import numpy as np
 
 from mcdenoise.errors import InputError
 from mcdenoise.eval.tonemap import to_srgb
+from mcdenoise.losses import RELMSE_EPS, SMAPE_EPS  # one ε for a loss and its metric
 
-#: ε of relMSE (Rousselle et al. 2011, Bako et al. 2017).
-RELMSE_EPS = 0.01
-#: ε of SMAPE (Vogels et al. 2018; OIDN's training uses the same).
-SMAPE_EPS = 0.01
 #: SSIM window side for images at least this large (skimage's default uniform window).
 SSIM_WINDOW = 7
 
@@ -130,14 +127,36 @@ def nonfinite_pixels(image: ArrayLike) -> int:
 _QUIET = {"invalid": "ignore", "over": "ignore", "divide": "ignore"}
 
 
+def relative_squared_error(
+    squared_error: np.ndarray, reference: np.ndarray, eps: float = RELMSE_EPS
+) -> np.ndarray:
+    """A squared error in relMSE units: ``squared_error / (r² + ε)``, elementwise, float64.
+
+    The one place the relMSE normalisation is written for arrays (the torch twin is
+    :func:`mcdenoise.losses.relative_squared_error`): :func:`relmse` and :func:`relmse_map`
+    give it ``(x − r)²``; an expected squared error (a variance) can be given instead.
+    Non-finite inputs give non-finite terms, without warnings.
+
+    Args:
+        squared_error: any shape broadcastable with ``reference``.
+        reference: linear HDR RGB, e.g. ``(3, H, W)``.
+        eps: relMSE's ε.
+
+    >>> relative_squared_error(np.array([0.25, 1.0]), np.array([1.0, 0.0]))
+    array([  0.24752475, 100.        ])
+    """
+    with np.errstate(**_QUIET):
+        return squared_error / (reference**2 + eps)
+
+
 def _relmse_map(x: np.ndarray, r: np.ndarray, eps: float = RELMSE_EPS) -> np.ndarray:
     with np.errstate(**_QUIET):
-        return np.mean((x - r) ** 2 / (r**2 + eps), axis=0)
+        return np.mean(relative_squared_error((x - r) ** 2, r, eps), axis=0)
 
 
 def _relmse(x: np.ndarray, r: np.ndarray) -> float:
     with np.errstate(**_QUIET):
-        return float(np.mean((x - r) ** 2 / (r**2 + RELMSE_EPS)))
+        return float(np.mean(relative_squared_error((x - r) ** 2, r)))
 
 
 def _smape(x: np.ndarray, r: np.ndarray) -> float:

@@ -27,7 +27,6 @@ Pipeline:
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -40,10 +39,10 @@ from torch import Tensor
 from tqdm import tqdm
 
 from mcdenoise.errors import InputError, McdenoiseError
-from mcdenoise.eval.metrics import RELMSE_EPS
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.exr import probe_exr
+from mcdenoise.losses import relmse, relmse_map
 
 #: Key of the reference colour in a prepared item.
 REFERENCE = "reference"
@@ -262,7 +261,7 @@ def describe_training(
 def error_map(noisy: Tensor, reference: Tensor) -> Tensor:
     """Per-pixel relMSE ``(H, W)`` of a noisy colour ``(3, H, W)`` against the reference."""
     x = torch.nan_to_num(noisy, nan=0.0, posinf=0.0, neginf=0.0)
-    return ((x - reference).square() / (reference.square() + RELMSE_EPS)).mean(0)
+    return relmse_map(x, reference).mean(0)
 
 
 class PatchSampler:
@@ -387,35 +386,7 @@ def augment(
     return out
 
 
-def masked_relmse(output: Tensor, reference: Tensor, mask: Tensor | None = None) -> Tensor:
-    """relMSE ``mean((x - r)² / (r² + ε))`` over the masked pixels, ε = 0.01.
-
-    Args:
-        output, reference: ``(B, 3, H, W)`` linear HDR colour.
-        mask: ``(B, 1, H, W)`` 0/1 weights, or ``None`` for every pixel.
-    """
-    err = (output - reference).square() / (reference.square() + RELMSE_EPS)
-    if mask is None:
-        return err.mean()
-    return (err * mask).sum() / (mask.sum() * output.shape[1]).clamp_min(1.0)
-
-
-def crop_log_relmse(output: Tensor, reference: Tensor, mask: Tensor, floor: float = 1e-6) -> Tensor:
-    """Mean over the batch of ``log(floor + relMSE of each crop's masked pixels)``."""
-    err = (output - reference).square() / (reference.square() + RELMSE_EPS)
-    per = (err * mask).sum((1, 2, 3)) / (mask.sum((1, 2, 3)) * output.shape[1]).clamp_min(1.0)
-    return torch.log(per + floor).mean()
-
-
 def image_relmse(output: Tensor, reference: Tensor) -> float:
-    """relMSE of one image ``(3, H, W)`` (or batch) as a Python float."""
-    return float(masked_relmse(output.double(), reference.double()))
-
-
-def geometric_mean(values: Sequence[float]) -> float:
-    """Geometric mean of positive values (0 if any is 0, nan for an empty list)."""
-    if not values:
-        return math.nan
-    if min(values) <= 0:
-        return 0.0
-    return math.exp(sum(math.log(v) for v in values) / len(values))
+    """relMSE (:func:`mcdenoise.losses.relmse`, in float64) of one image ``(3, H, W)`` (or a
+    batch) as a Python float: the validation error of the trainers."""
+    return float(relmse(output.double(), reference.double()))

@@ -23,7 +23,8 @@ from tqdm import tqdm
 from mcdenoise.filters.prepare import GUIDE_FEATURES
 from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import new_model
-from mcdenoise.train.dataset import Item, geometric_mean, image_relmse
+from mcdenoise.stats import geometric_mean
+from mcdenoise.train.dataset import Item, image_relmse
 
 #: Default grids: the main bandwidths of each filter (values around the tuned defaults).
 GRIDS: dict[str, dict[str, list[Any]]] = {

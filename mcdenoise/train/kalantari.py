@@ -23,6 +23,8 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.prepare import GUIDE_FEATURES
+from mcdenoise.losses import crop_log_relmse
+from mcdenoise.losses import relmse as masked_relmse
 from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import (
     KalantariModel,
@@ -31,17 +33,15 @@ from mcdenoise.models.kalantari import (
     prepare_item,
     settings_class,
 )
+from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
     Item,
     LoadReport,
     PatchSampler,
-    crop_log_relmse,
     describe_training,
-    geometric_mean,
     image_relmse,
     load_split,
-    masked_relmse,
 )
 from mcdenoise.train.loop import TrainResult, run_training
 

@@ -35,7 +35,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError
-from mcdenoise.losses import compute_loss
+from mcdenoise.losses import compute_loss, crop_log_relmse
 from mcdenoise.models.encoders import (
     COLOR_TENSORS,
     SOURCES,
@@ -46,15 +46,14 @@ from mcdenoise.models.encoders import (
 )
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
+from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
     Item,
     LoadReport,
     PatchSampler,
     augment,
-    crop_log_relmse,
     describe_training,
-    geometric_mean,
     image_relmse,
     load_split,
 )

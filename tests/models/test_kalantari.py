@@ -12,10 +12,10 @@ from mcdenoise.errors import InputError
 from mcdenoise.filters.prepare import denoise_nlm, denoise_xbf
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import MissingFeatureError
+from mcdenoise.losses import relmse as masked_relmse
 from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import KalantariModel, new_model, prepare_item, settings_class
 from mcdenoise.train.checkpoint import CheckpointError
-from mcdenoise.train.dataset import masked_relmse
 
 GUIDES = ["albedo", "normal", "depth", "position"]
 

@@ -13,8 +13,9 @@ from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.train.dataset import (
     PatchSampler,
     check_reference,
+    error_map,
+    image_relmse,
     load_items,
-    masked_relmse,
     scan_dataset,
     split_images,
 )
@@ -92,11 +93,23 @@ def test_sampler_crops_masks_and_importance(tiny_dataset: Path) -> None:
         PatchSampler(items, patch=40, margin=4)
 
 
-def test_masked_relmse_ignores_masked_out_pixels() -> None:
-    ref = torch.ones(1, 3, 4, 4)
-    out = ref.clone()
-    out[..., 0, 0] = 100.0
-    mask = torch.ones(1, 1, 4, 4)
-    mask[..., 0, 0] = 0
-    assert float(masked_relmse(out, ref, mask)) == 0.0
-    assert float(masked_relmse(out, ref)) > 0
+def test_error_map_is_the_per_pixel_relmse_with_nonfinite_noise_as_zero() -> None:
+    ref = torch.full((3, 2, 2), 0.5)
+    noisy = ref.clone()
+    noisy[:, 0, 0] = 1.5  # (1.5 - 0.5)² / (0.25 + 0.01) in each channel
+    noisy[0, 1, 1] = float("nan")  # read as 0: (0 - 0.5)² / 0.26 in one channel of three
+    m = error_map(noisy, ref)
+    assert m.shape == (2, 2)
+    assert float(m[0, 0]) == pytest.approx(1 / 0.26, rel=1e-6)
+    assert float(m[1, 1]) == pytest.approx(0.25 / 0.26 / 3, rel=1e-6)
+    assert float(m[0, 1]) == 0.0 and float(m[1, 0]) == 0.0
+
+
+def test_image_relmse_is_the_float64_relmse_of_the_metrics() -> None:
+    from mcdenoise.eval.metrics import relmse as metric_relmse
+
+    g = torch.Generator().manual_seed(0)
+    out, ref = torch.rand(3, 5, 7, generator=g) * 4, torch.rand(3, 5, 7, generator=g)
+    got = image_relmse(out, ref)
+    assert isinstance(got, float)
+    assert got == pytest.approx(metric_relmse(out, ref), rel=1e-12)
