@@ -1,4 +1,4 @@
-"""``mcdenoise render``: click wiring for :func:`mcdenoise.render.generate.generate`."""
+"""``mcdenoise render``: click wiring for :func:`mcdenoise.render.generate.render_dataset`."""
 
 from __future__ import annotations
 
@@ -75,6 +75,14 @@ import click
     "OUT/<id>/ref/frame_0000.exr, ...",
 )
 @click.option(
+    "--samples-out",
+    type=click.Path(file_okay=False),
+    default=None,
+    metavar="DIR",
+    help="Afterwards also write every image in the layout of data/samples: DIR/<id>_spp<n>.exr "
+    "per level (colour float32, features half) and DIR/ref/<id>.exr (colour only).",
+)
+@click.option(
     "--progress/--no-progress", default=None, help="Progress bar (default: when on a terminal)."
 )
 def render(
@@ -90,6 +98,7 @@ def render(
     pass_spp,
     compression,
     frames,
+    samples_out,
     progress,
 ):
     """Render a denoising data set with Mitsuba 3 from scene SPECS (TOML files or folders of
@@ -103,20 +112,11 @@ def render(
     scene the folder OUT/<id>/ holds frame_0000.exr ... (the same buffers plus `motion`) and
     ref/frame_0000.exr ...; sequences are sharded whole and resumed frame by frame.
     """
-    from mcdenoise.errors import InputError
-    from mcdenoise.render.generate import (
-        RenderConfig,
-        generate,
-        jobs_from_random,
-        jobs_from_specs,
-        parse_res,
-        parse_shard,
-        parse_spp,
-    )
-    from mcdenoise.render.spec import load_spec
+    from mcdenoise_cli.parsing import parse_res, parse_shard, parse_spp
 
-    if not specs and random_count is None:
-        raise InputError("nothing to render: give SPEC.toml files (or folders) or --random N")
+    from mcdenoise.render.config import RenderConfig
+    from mcdenoise.render.generate import render_dataset
+
     width, height = parse_res(res)
     config = RenderConfig(
         out=Path(out),
@@ -132,20 +132,7 @@ def render(
         progress=sys.stderr.isatty() if progress is None else progress,
         frames=frames,
     )
-    files: list[Path] = []
-    for s in specs:
-        p = Path(s)
-        if p.is_dir():
-            found = sorted(p.glob("*.toml"))
-            if not found:
-                raise InputError(f"{p}: folder holds no *.toml scene spec")
-            files.extend(found)
-        else:
-            files.append(p)
-    jobs = jobs_from_specs([load_spec(f) for f in files], seed=seed)
-    if random_count is not None:
-        jobs += jobs_from_random(random_count, seed, start=len(jobs), taken=[j.id for j in jobs])
-    result = generate(jobs, config)
+    result = render_dataset(specs, config, random=random_count, samples_out=samples_out)
     i, n = config.shard
     where = f" (shard {i}/{n})" if n > 1 else ""
     how = f" with {result.variant}" if result.variant else ""
@@ -155,3 +142,5 @@ def render(
         f"of {result.shard_jobs} {what}{where}{how} in {result.seconds:.1f} s; "
         f"manifest: {result.manifest}"
     )
+    if samples_out is not None:
+        click.echo(f"samples layout: {len(result.exported)} file(s) in {samples_out}")

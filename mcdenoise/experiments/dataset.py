@@ -1,7 +1,7 @@
 """The data of an experiment: render what is missing, then read the render folder's manifest.
 
 An experiment's images are an ``mcdenoise render`` folder (layout in
-:mod:`mcdenoise.render.generate`): ``<id>.exr`` with one part ``spp<n>`` per level of the
+:mod:`mcdenoise.render.layout`): ``<id>.exr`` with one part ``spp<n>`` per level of the
 ladder, ``ref/<id>.exr``, and ``manifest.json`` with each level's cumulative
 ``render_seconds`` and its ``jit_seconds``. :func:`prepare_data` renders into the folder
 through :func:`mcdenoise.render.generate.generate` (resumable: finished images are skipped,
@@ -75,17 +75,11 @@ def render_folder(spec: ExperimentSpec, out: str | os.PathLike[str]) -> Path:
 
 
 def render_jobs(spec: ExperimentSpec) -> list[Any]:
-    """The :class:`~mcdenoise.render.generate.ImageJob` list of the spec's scenes (curated
+    """The :class:`~mcdenoise.render.jobs.ImageJob` list of the spec's scenes (curated
     specs, then ``random`` procedural scenes), seeded by ``[render] seed``."""
-    from mcdenoise.render.generate import jobs_from_random, jobs_from_specs
-    from mcdenoise.render.spec import load_spec
+    from mcdenoise.render.jobs import make_jobs
 
-    jobs = jobs_from_specs([load_spec(p) for p in spec.scene_specs], seed=spec.seed)
-    if spec.random:
-        jobs += jobs_from_random(
-            spec.random, spec.seed, start=len(jobs), taken=[j.id for j in jobs]
-        )
-    return jobs
+    return make_jobs(spec.scene_specs, random=spec.random or None, seed=spec.seed)
 
 
 def prepare_data(
@@ -105,7 +99,8 @@ def prepare_data(
     if spec.folder is not None:
         manifest = _manifest(folder)
         return folder, [str(r["id"]) for r in manifest.get("images", [])], None
-    from mcdenoise.render.generate import RenderConfig, generate
+    from mcdenoise.render.config import RenderConfig
+    from mcdenoise.render.generate import generate
     from mcdenoise.render.manifest import shard_manifests
 
     config = RenderConfig(

@@ -287,18 +287,20 @@ def _spp_ladder(ctx: _Ctx, key: str, value: Any) -> tuple[int, ...]:
 
 
 def _scene_files(ctx: _Ctx, key: str, value: Any) -> tuple[Path, ...]:
+    from mcdenoise.render.spec import SpecError, collect_specs
+
     files: list[Path] = []
     for i, item in enumerate(_list(ctx, key, value)):
         p = ctx.resolve(_str(ctx, f"{key}[{i}]", item))
-        if p.is_dir():
-            found = sorted(p.glob("*.toml"))
-            if not found:
-                raise ctx.error(f"{key}[{i}]", f"folder {item!r} holds no *.toml scene spec")
-            files.extend(found)
-        elif p.is_file():
-            files.append(p)
-        else:
-            raise ctx.error(f"{key}[{i}]", f"{item!r} not found (looked at {p})")
+        try:
+            files.extend(collect_specs([p]))
+        except SpecError:  # named as the experiment spec names it
+            what = (
+                f"folder {item!r} holds no *.toml scene spec"
+                if p.is_dir()
+                else f"{item!r} not found (looked at {p})"
+            )
+            raise ctx.error(f"{key}[{i}]", what) from None
     if len(set(files)) != len(files):
         raise ctx.error(key, "names a scene spec twice")
     return tuple(files)
@@ -392,7 +394,7 @@ def parse_experiment(
     ref_spp = _int(ctx, "render.ref_spp", render.get("ref_spp", 1024), lo=1)
     if folder is None and ref_spp <= spp[-1]:
         raise ctx.error("render.ref_spp", f"must exceed the highest level {spp[-1]}, got {ref_spp}")
-    from mcdenoise.render.generate import VARIANT_CHOICES
+    from mcdenoise.render.config import VARIANT_CHOICES
 
     variant = _str(ctx, "render.variant", render.get("variant", "auto"))
     if variant not in VARIANT_CHOICES:

@@ -141,6 +141,21 @@ def test_errors_name_the_file_and_the_key(data, where):
     assert where in error_of(data)
 
 
+def test_scene_spec_paths_are_collected_like_the_render_command(tmp_path: Path):
+    """Folders stand for their *.toml (``collect_specs``, as for ``mcdenoise render``); errors
+    are named by the key."""
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "two").mkdir()
+    for name in ("b.toml", "a.toml", "notes.txt"):
+        (tmp_path / "two" / name).write_text("", encoding="utf-8")
+    spec = parse({"scenes": {"specs": ["two"]}}, tmp_path)
+    assert [p.name for p in spec.scene_specs] == ["a.toml", "b.toml"]
+    msg = error_of({"scenes": {"specs": ["two", "empty"]}}, tmp_path)
+    assert "scenes.specs[1]: folder 'empty' holds no *.toml scene spec" in msg
+    msg = error_of({"scenes": {"specs": ["two", "two/a.toml"]}}, tmp_path)
+    assert "scenes.specs: names a scene spec twice" in msg
+
+
 def test_folder_scenes_allow_only_a_subset_of_spp(tmp_path: Path):
     (tmp_path / "rendered").mkdir()
     spec = parse({"scenes": {"folder": "rendered"}}, tmp_path)

@@ -21,25 +21,12 @@ import torch
 from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers, probe_exr, read_exr
 from mcdenoise.render import generate as gen
+from mcdenoise.render import jobs as jobs_module
 from mcdenoise.render import moments as moments_module
-from mcdenoise.render.generate import (
-    ImageJob,
-    RenderConfig,
-    RenderError,
-    generate,
-    image_seed,
-    jobs_from_specs,
-    level_passes,
-    load_manifest,
-    merge_manifests,
-    noisy_seed,
-    parse_res,
-    parse_shard,
-    parse_spp,
-    reference_seed,
-    render_image,
-    split_passes,
-)
+from mcdenoise.render.config import RenderConfig, RenderError
+from mcdenoise.render.generate import generate
+from mcdenoise.render.jobs import ImageJob, image_seed, jobs_from_specs
+from mcdenoise.render.manifest import load_manifest, merge_manifests
 from mcdenoise.render.moments import (
     Moments,
     buffers_from_moments,
@@ -47,6 +34,7 @@ from mcdenoise.render.moments import (
     moment_integrator,
     moments_from_film,
 )
+from mcdenoise.render.passes import render_image
 from mcdenoise.render.spec import SpecError, load_spec, parse_spec
 
 VARIANT = "scalar_rgb"
@@ -162,45 +150,15 @@ def channels(path: Path, part: str | int) -> dict[str, np.ndarray]:
 
 
 # --- settings, seeds and passes (no Mitsuba) -------------------------------------------------
-def test_parsers_accept_good_and_refuse_bad_values() -> None:
-    assert parse_spp("4,16,64") == (4, 16, 64)
-    assert parse_shard("2/3") == (2, 3)
-    assert parse_res("256") == (256, 256) and parse_res("320x200") == (320, 200)
-    for bad in ("0", "16,4", "4,4", "a,b", ""):
-        with pytest.raises(RenderError, match="--spp"):
-            parse_spp(bad)
-    for bad in ("3/2", "0/2", "1/0", "1-2", "x"):
-        with pytest.raises(RenderError, match="shard"):
-            parse_shard(bad)
-    for bad in ("0", "10x0", "abc"):
-        with pytest.raises(RenderError, match="--res"):
-            parse_res(bad)
+def test_config_refuses_bad_values() -> None:
     with pytest.raises(RenderError, match="unknown Mitsuba variant 'gpu'"):
         RenderConfig(out=Path("x"), variant="gpu")
     with pytest.raises(RenderError, match="ref_spp"):
         RenderConfig(out=Path("x"), ref_spp=0)
-
-
-@pytest.mark.parametrize(
-    ("levels", "pass_spp"), [((4, 16, 64), 128), ((1, 2, 300), 128), ((5,), 2), ((7, 1000), 100)]
-)
-def test_progressive_passes_cover_each_increment_once(levels, pass_spp) -> None:
-    passes = level_passes(levels, pass_spp)
-    assert len(passes) == len(levels)
-    assert np.cumsum([sum(p) for p in passes]).tolist() == list(levels)
-    assert all(1 <= n <= pass_spp for p in passes for n in p)
-
-
-def test_noisy_and_reference_seeds_are_distinct_and_disjoint() -> None:
-    s = image_seed(0, "cornell")
-    n_noisy = sum(len(p) for p in level_passes((4, 16, 64, 1024), 128))
-    n_ref = len(split_passes(4096, 128))
-    noisy = {noisy_seed(s, k) for k in range(n_noisy)}
-    ref = {reference_seed(s, k) for k in range(n_ref)}
-    assert len(noisy) == n_noisy and len(ref) == n_ref and not noisy & ref
-    assert all(0 <= v < 2**32 for v in noisy | ref)
-    # Image seeds depend on the base seed and the id, not on the position in the job list.
-    assert image_seed(0, "a") == image_seed(0, "a") != image_seed(1, "a") != image_seed(0, "b")
+    with pytest.raises(RenderError, match="strictly increasing"):
+        RenderConfig(out=Path("x"), spp=(16, 4))
+    with pytest.raises(RenderError, match="shard 3/2"):
+        RenderConfig(out=Path("x"), shard=(3, 2))
 
 
 def test_job_ids_are_unique_and_file_safe() -> None:
@@ -502,7 +460,7 @@ def test_llvm_variant_is_deterministic_too(tmp_path: Path, variant: str) -> None
     assert load_manifest(tmp_path / "a")["variants"] == ["llvm_ad_rgb"]
 
 
-@pytest.mark.parametrize("module", [gen, moments_module])
+@pytest.mark.parametrize("module", [jobs_module, moments_module])
 def test_docstring_examples(module) -> None:
     import doctest
 

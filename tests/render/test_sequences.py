@@ -25,16 +25,12 @@ from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers, probe_exr, read_exr
 from mcdenoise.render import generate as gen
 from mcdenoise.render import sequences as sq
+from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.effects import plan_effects
-from mcdenoise.render.generate import (
-    RenderConfig,
-    RenderError,
-    frame_file,
-    frame_reference_file,
-    generate,
-    jobs_from_specs,
-    load_manifest,
-)
+from mcdenoise.render.generate import generate
+from mcdenoise.render.jobs import jobs_from_specs
+from mcdenoise.render.layout import frame_file, frame_reference_file
+from mcdenoise.render.manifest import load_manifest
 from mcdenoise.render.spec import SpecError, parse_spec
 
 VARIANT = "scalar_rgb"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+from pathlib import Path
 
 import pytest
 
@@ -249,3 +250,24 @@ def test_sun_direction_round_trips_bit_for_bit():
     s2 = parse_spec(s1.to_dict())
     s3 = parse_spec(s2.to_dict())
     assert s1 == s2 == s3
+
+
+def test_collect_specs_expands_folders_in_name_order(tmp_path: Path) -> None:
+    from mcdenoise.render.spec import collect_specs
+
+    (tmp_path / "d").mkdir()
+    for name in ("b.toml", "a.toml", "c.json"):
+        (tmp_path / "d" / name).write_text("", encoding="utf-8")
+    (tmp_path / "x.toml").write_text("", encoding="utf-8")
+    got = collect_specs(["x.toml", "d", "x.toml"], base=tmp_path)
+    assert [p.relative_to(tmp_path).as_posix() for p in got] == [
+        "x.toml",
+        "d/a.toml",
+        "d/b.toml",
+        "x.toml",  # named twice: listed twice (two images)
+    ]
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SpecError, match=r"empty: folder holds no \*\.toml scene spec"):
+        collect_specs([tmp_path / "empty"])
+    with pytest.raises(SpecError, match=r"nope\.toml: scene spec not found"):
+        collect_specs(["nope.toml"], base=tmp_path)

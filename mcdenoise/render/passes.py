@@ -1,0 +1,245 @@
+"""Rendering one image: the passes of every spp level and of the reference, with their times.
+
+:func:`render_image` renders a job as the spec's effect plan says
+(:mod:`mcdenoise.render.effects`): the integrator stack is ``moment`` -> ``aov`` (the plan's
+feature buffers) -> the plan's radiance integrator, on a box-filtered film with an
+independent sampler (:mod:`mcdenoise.render.moments`), so every buffer and its per-pixel
+variance of the mean come from the same samples. The levels are rendered progressively and
+the reference in bounded passes, with the seeds of :mod:`mcdenoise.render.jobs`.
+
+Time
+    ``seconds`` of a pass is the wall time of ``mi.render`` plus reading the film; the
+    cumulative ``render_seconds`` of a level is the sum over the passes of every increment up to
+    it (scene loading, ``load_seconds``, is counted separately). In the JIT variants the first
+    pass of a new size also compiles kernels; that share is recorded as ``jit_seconds``
+    (Dr.Jit's kernel history) so "what accuracy costs in time" can leave it out.
+
+Determinism: the same spec, seed, settings and variant give identical pixel data.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.render.config import RenderConfig, RenderError
+from mcdenoise.render.effects import EffectPlan, plan_effects
+from mcdenoise.render.jobs import (
+    ImageJob,
+    level_part,
+    level_passes,
+    noisy_seed,
+    reference_seed,
+    split_passes,
+)
+from mcdenoise.render.moments import (
+    Moments,
+    buffers_from_moments,
+    moment_integrator,
+    render_moments,
+)
+from mcdenoise.render.spec import Camera
+
+
+@dataclass
+class RenderedImage:
+    """The buffers and records of one rendered image (not yet written).
+
+    ``levels`` maps part name (``spp4``, ...) to the buffers of that level; ``reference`` is
+    the reference; ``level_records``/``reference_record`` hold seeds, passes and seconds.
+    """
+
+    job: ImageJob
+    plan: EffectPlan
+    variant: str
+    mitsuba_version: str
+    levels: dict[str, FeatureBuffers]
+    reference: FeatureBuffers
+    level_records: list[dict[str, Any]]
+    reference_record: dict[str, Any]
+    load_seconds: float
+
+
+class _JitClock:
+    """Seconds Dr.Jit spent compiling kernels since the last call (JIT variants only)."""
+
+    def __init__(self, variant: str) -> None:
+        self.enabled = not variant.startswith("scalar")
+        self._dr: Any = None
+        self._previous = False
+        if self.enabled:
+            import drjit as dr
+
+            self._dr = dr
+            self._previous = bool(dr.flag(dr.JitFlag.KernelHistory))
+            dr.set_flag(dr.JitFlag.KernelHistory, True)
+            dr.kernel_history()  # drop what came before
+
+    def lap(self) -> float | None:
+        if not self.enabled:
+            return None
+        ms = sum(
+            float(k.get("codegen_time", 0.0)) + float(k.get("backend_time", 0.0))
+            for k in self._dr.kernel_history()
+        )
+        return round(ms / 1000.0, 6)
+
+    def close(self) -> None:
+        if self.enabled:
+            self._dr.kernel_history()
+            self._dr.set_flag(self._dr.JitFlag.KernelHistory, self._previous)
+
+
+def _render_passes(
+    scene: Any,
+    sizes: Sequence[int],
+    seeds: Sequence[int],
+    features: Sequence[str],
+    clock: _JitClock,
+    total: Moments | None,
+) -> tuple[Moments, list[dict[str, Any]], float]:
+    records, seconds = [], 0.0
+    for n, s in zip(sizes, seeds):
+        t0 = time.perf_counter()
+        m = render_moments(scene, n, s, features)
+        dt = time.perf_counter() - t0
+        seconds += dt
+        rec: dict[str, Any] = {"seed": s, "spp": n, "seconds": round(dt, 6)}
+        jit = clock.lap()
+        if jit is not None:
+            rec["jit_seconds"] = jit
+        records.append(rec)
+        total = m if total is None else total.merge(m)
+    assert total is not None
+    return total, records, seconds
+
+
+def _jit_total(passes: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """``{"jit_seconds": sum}`` over ``passes`` in JIT variants, else ``{}``."""
+    jit = [p["jit_seconds"] for p in passes if "jit_seconds" in p]
+    return {"jit_seconds": round(sum(jit), 6)} if jit else {}
+
+
+def _load_scene(
+    job: ImageJob, plan: EffectPlan, config: RenderConfig, camera: Camera | None = None
+) -> Any:
+    import mitsuba as mi
+
+    from mcdenoise.render.scenes import scene_dict
+
+    d = scene_dict(
+        job.spec,
+        plan,
+        width=config.width,
+        height=config.height,
+        integrator=moment_integrator(plan.integrator_dict(), plan.features),
+        camera=camera,
+    )
+    try:
+        return mi.load_dict(d)
+    except Exception as err:  # Mitsuba reports every load failure as a long RuntimeError
+        first = next((ln.strip() for ln in str(err).splitlines() if ln.strip()), repr(err))
+        raise RenderError(
+            f"{job.spec.source or job.spec.name}: Mitsuba cannot load the scene: {first}"
+        ) from None
+
+
+def render_image(
+    job: ImageJob,
+    config: RenderConfig,
+    variant: str,
+    *,
+    camera: Camera | None = None,
+    attributes: Mapping[str, Any] | None = None,
+) -> RenderedImage:
+    """Render the noisy levels and the reference of ``job`` (variant already set).
+
+    ``camera`` overrides ``job.spec.camera`` (a frame of a sequence); ``attributes`` are added
+    to every part's header.
+
+    Returns float32 buffers ``(C, H, W)``: colour in linear HDR RGB, features as in
+    :mod:`mcdenoise.render.moments`, each with its variance of the mean.
+    """
+    import mitsuba as mi
+
+    if mi.variant() != variant:
+        raise RenderError(
+            f"render_image: Mitsuba variant {mi.variant()!r} is set, not {variant!r} "
+            "(call mcdenoise.render.scenes.ensure_variant first)"
+        )
+    plan = plan_effects(job.spec)
+    t0 = time.perf_counter()
+    scene = _load_scene(job, plan, config, camera)
+    load_seconds = time.perf_counter() - t0
+    common = {
+        "mcdenoise:scene": job.spec.name,
+        "mcdenoise:image": job.id,
+        "mcdenoise:seed": job.seed,
+        "mcdenoise:effects": ",".join(job.spec.effects),
+        "mcdenoise:plan": plan.describe(),
+        "mcdenoise:variant": variant,
+        "mitsuba:version": str(mi.__version__),
+        **dict(attributes or {}),
+    }
+    clock = _JitClock(variant)
+    try:
+        levels: dict[str, FeatureBuffers] = {}
+        level_records: list[dict[str, Any]] = []
+        total: Moments | None = None
+        cumulative, k = 0.0, 0
+        for level, sizes in zip(config.spp, level_passes(config.spp, config.pass_spp)):
+            seeds = [noisy_seed(job.seed, k + j) for j in range(len(sizes))]
+            k += len(sizes)
+            total, passes, seconds = _render_passes(
+                scene, sizes, seeds, plan.features, clock, total
+            )
+            cumulative += seconds
+            part = level_part(level)
+            levels[part] = buffers_from_moments(
+                total, {**common, "mcdenoise:render_seconds": round(cumulative, 6)}
+            )
+            level_records.append(
+                {
+                    "spp": level,
+                    "part": part,
+                    "increment_spp": sum(sizes),
+                    "passes": passes,
+                    "increment_seconds": round(seconds, 6),
+                    "render_seconds": round(cumulative, 6),
+                    **_jit_total(passes),
+                }
+            )
+        sizes = split_passes(config.ref_spp, config.pass_spp)
+        seeds = [reference_seed(job.seed, j) for j in range(len(sizes))]
+        ref_total, passes, ref_seconds = _render_passes(
+            scene, sizes, seeds, plan.features, clock, None
+        )
+    finally:
+        clock.close()
+    reference = buffers_from_moments(
+        ref_total,
+        {
+            **common,
+            "mcdenoise:render_seconds": round(ref_seconds, 6),
+            "mcdenoise:passes": len(sizes),
+        },
+    )
+    return RenderedImage(
+        job=job,
+        plan=plan,
+        variant=variant,
+        mitsuba_version=str(mi.__version__),
+        levels=levels,
+        reference=reference,
+        level_records=level_records,
+        reference_record={
+            "spp": config.ref_spp,
+            "passes": passes,
+            "render_seconds": round(ref_seconds, 6),
+            **_jit_total(passes),
+        },
+        load_seconds=round(load_seconds, 6),
+    )
