@@ -50,6 +50,7 @@ from mcdenoise.experiments.tradeoff import (
     log_budgets,
     pareto_front,
 )
+from mcdenoise.stats import geometric_mean
 
 #: Version of the results.json layout of experiments; bump when fields change meaning.
 SCHEMA = "mcdenoise.experiment/1"
@@ -83,11 +84,8 @@ def _short(text: str, limit: int = 160) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "\u2026"
 
 
-def _geomean(values: Sequence[float]) -> float | None:
-    vals = [v for v in values if v is not None and math.isfinite(v) and v > 0]
-    if not vals or len(vals) != len(values):
-        return None
-    return float(np.exp(np.mean(np.log(vals))))
+def _geomean(values: Sequence[float | None]) -> float | None:
+    return geometric_mean(values, invalid="none")
 
 
 @dataclass

@@ -37,7 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from mcdenoise.eval.metrics import RELMSE_EPS
+from mcdenoise.eval.metrics import relative_squared_error
+from mcdenoise.losses import RELMSE_EPS
+from mcdenoise.stats import geometric_mean
 
 #: Errors below this multiple of the reference's noise floor are "limited by the reference".
 FLOOR_FACTOR = 2.0
@@ -81,7 +83,7 @@ class NoisyCurve:
 
     def one_over_n(self) -> float:
         """``c`` of the best ``e = c / N`` fit in log space (the geometric mean of ``e·N``)."""
-        return float(np.exp(np.mean(np.log(np.asarray(self.error) * np.asarray(self.spp)))))
+        return geometric_mean(np.asarray(self.error) * np.asarray(self.spp))
 
 
 @dataclass(frozen=True)
@@ -187,6 +189,9 @@ def reference_noise_floor(
 ) -> float:
     """Expected relMSE of a reference against the converged image: ``mean(var / (ref² + ε))``.
 
+    The variance is the expected squared error, put in relMSE units by
+    :func:`mcdenoise.eval.metrics.relative_squared_error`.
+
     Args:
         reference: ``(3, H, W)`` linear HDR RGB reference colour.
         variance: its variance of the mean, ``(3, H, W)`` or ``(1, H, W)`` (a luminance
@@ -203,8 +208,9 @@ def reference_noise_floor(
     var = np.asarray(variance, dtype=np.float64)
     if ref.ndim != 3 or var.ndim != 3 or var.shape[1:] != ref.shape[1:]:
         raise ValueError(f"reference {ref.shape} and variance {var.shape} do not match")
-    with np.errstate(invalid="ignore", over="ignore"):
-        terms = np.broadcast_to(np.maximum(var, 0.0), ref.shape) / (ref**2 + eps)
+    with np.errstate(invalid="ignore"):  # NaN variances become NaN terms, ignored below
+        var = np.broadcast_to(np.maximum(var, 0.0), ref.shape)
+    terms = relative_squared_error(var, ref, eps)
     finite = terms[np.isfinite(terms)]
     return float(finite.mean()) if finite.size else math.nan
 

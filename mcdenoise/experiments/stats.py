@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from mcdenoise.stats import geometric_mean
+
 #: Verdicts of :class:`RatioStats`.
 BETTER = "better"
 WORSE = "worse"
@@ -56,15 +58,12 @@ def bootstrap_geomean_ci(
     (0.5, 0.5, 0.5)
     """
     r = np.asarray(ratios, dtype=np.float64)
-    if r.size == 0 or not np.all(np.isfinite(r)) or np.any(r <= 0):
-        raise ValueError(f"ratios must be finite and > 0, got {list(r)}")
-    logs = np.log(r)
-    point = float(np.exp(logs.mean()))
+    point = geometric_mean(r, invalid="raise")
     if r.size == 1:
         return point, point, point
     rng = rng or np.random.default_rng(0)
     idx = rng.integers(0, r.size, size=(int(resamples), r.size))
-    means = logs[idx].mean(axis=1)
+    means = np.log(r)[idx].mean(axis=1)
     alpha = (1.0 - confidence) / 2.0
     lo, hi = np.quantile(means, [alpha, 1.0 - alpha])
     return point, float(np.exp(lo)), float(np.exp(hi))
@@ -164,7 +163,7 @@ def compare_methods(
                     ratios.append(e / b)
                     beats += e < b
             mean = float(np.mean(mine)) if mine else None
-            geo = float(np.exp(np.mean(np.log(mine)))) if mine and min(mine) > 0 else None
+            geo = geometric_mean(mine, invalid="none")
             ratio = lo = hi = None
             if method == baseline:
                 verdict = IS_BASELINE

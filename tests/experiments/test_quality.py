@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from mcdenoise.eval.metrics import relmse
+from mcdenoise.eval.metrics import relative_squared_error, relmse
 from mcdenoise.experiments.quality import (
     ABOVE_LADDER,
     BELOW_LADDER,
@@ -82,6 +82,9 @@ def test_slope_and_fit_of_the_noisy_curve():
     curve = exact_curve()
     assert curve.slope() == pytest.approx(-1.0)
     assert curve.one_over_n() == pytest.approx(C)
+    # c is the geometric mean of e·N: the best fit of e = c / N in log space
+    rough = NoisyCurve((1, 4), (0.8, 0.05), (1.0, 4.0))
+    assert rough.one_over_n() == pytest.approx(math.sqrt(0.8 * 0.2), rel=1e-14)
     assert loglog_slope([4], [0.1]) is None
     with pytest.raises(ValueError):
         NoisyCurve((1, 2), (0.1, 0.0), (1.0, 2.0))
@@ -118,6 +121,18 @@ def test_noise_floor_of_a_known_variance():
     )
     with pytest.raises(ValueError):
         reference_noise_floor(ref, var[:, :2])
+
+
+def test_noise_floor_ignores_nonfinite_terms_and_clamps_negative_variances():
+    ref = np.full((1, 2, 2), 1.0).repeat(3, axis=0)
+    var = np.full((1, 2, 2), 0.0101)
+    var[0, 0, 0] = np.nan  # a NaN variance: its terms are left out of the mean
+    var[0, 0, 1] = -1.0  # a negative variance (a bad estimate) counts as 0
+    assert reference_noise_floor(ref, var) == pytest.approx((0.0 + 0.01 + 0.01) / 3)
+    # it is the metrics' relMSE normalisation applied to the variance
+    ref2, var2 = np.full((3, 2, 2), 0.5), np.full((3, 2, 2), 0.02)
+    assert reference_noise_floor(ref2, var2) == float(np.mean(relative_squared_error(var2, ref2)))
+    assert math.isnan(reference_noise_floor(ref, np.full((1, 2, 2), np.nan)))
 
 
 def test_noise_floor_predicts_the_error_of_a_noisy_reference():

@@ -15,6 +15,7 @@ from mcdenoise.experiments.stats import (
     compare_methods,
     wins,
 )
+from mcdenoise.stats import geometric_mean
 
 SCENES = [f"s{i}" for i in range(8)]
 
@@ -54,6 +55,21 @@ def test_bootstrap_interval_contains_the_geometric_mean_and_is_seeded():
         bootstrap_geomean_ci([0.5, 0.0])
     with pytest.raises(ValueError):
         bootstrap_geomean_ci([])
+    for bad in ([0.5, float("nan")], [0.5, float("inf")], [-0.5]):
+        with pytest.raises(ValueError):
+            bootstrap_geomean_ci(bad)
+    assert bootstrap_geomean_ci([0.5, 2.0])[0] == geometric_mean([0.5, 2.0]) == 1.0
+
+
+def test_mean_and_geometric_mean_over_scenes():
+    errors = {("s0", 4, "base"): 0.2, ("s1", 4, "base"): 0.3, ("s0", 4, "m"): 0.1}
+    errors[("s1", 4, "m")] = 0.4
+    (m,) = compare_methods(errors, scenes=["s0", "s1"], methods=["m"], spps=[4], baseline="base")
+    assert m.mean_relmse == pytest.approx(0.25) and m.geomean_relmse == pytest.approx(0.2)
+    # an exact match (error 0): the mean counts it, the geometric mean has none (not 0)
+    errors[("s1", 4, "m")] = 0.0
+    (m,) = compare_methods(errors, scenes=["s0", "s1"], methods=["m"], spps=[4], baseline="base")
+    assert m.scenes == 2 and m.mean_relmse == pytest.approx(0.05) and m.geomean_relmse is None
 
 
 def test_a_consistent_halving_is_better_and_a_doubling_worse():
