@@ -2,7 +2,7 @@
 # Equal-budget training runs for the kpcn ablations printed by bench_kpcn.py.
 # Every run: the shipped model's recipe (data/recipes/kpcn.md: k = KERNEL, 3 scales,
 # source-aware encoders, SMAPE) with ONE change, trained for STEPS steps. Defaults reproduce the
-# README's 8000-step table (k = 5 base; ~27 min per k = 5 run on 1 thread, two runs side by side
+# 8000-step table of docs/results/kpcn.md (k = 5 base; ~27 min per k = 5 run on 1 thread, two runs side by side
 # with THREADS=1; k = 21 is the exception: about 6 s per step on 1 thread, some 13 hours
 # for 8000 steps, so it has no row yet); KERNEL=11 STEPS=1200 gives the older 1200-step
 # table (made before the in-image softmax fix). Keep the 200 warm-up steps: at lr 1e-3
@@ -23,5 +23,5 @@ run scales1 -s kernel=$KERNEL -s scales=1
 run shared -s kernel=$KERNEL -s encoder=shared
 run asym -s kernel=$KERNEL -s loss=asymmetric -s asym_slope=2
 # network size: 5 levels of OIDN-like widths (783 k parameters against 249 k; ~0.3 s per step
-# on 1 thread against ~0.22). The README's row: DATA=data/generated/kpcn-train STEPS=16000.
+# on 1 thread against ~0.22). Its row in docs/results/kpcn.md: DATA=data/generated/kpcn-train STEPS=16000.
 run wide -s kernel=$KERNEL -s channels=32,48,64,80,96
