@@ -16,6 +16,12 @@ ssim     SSIM, data_range = 1, mean over channels    sRGB, clamped to [0, 1] (no
 flip     mean HDR-FLIP error (``flip_evaluator``)    linear HDR RGB (negatives clamped to 0)
 =======  ==========================================  ======================================
 
+The ε of relMSE and SMAPE are the training losses' (:data:`mcdenoise.losses.RELMSE_EPS`,
+:data:`mcdenoise.losses.SMAPE_EPS`), imported from there. :func:`relative_squared_error` is the
+relMSE normalisation ``(·) / (r² + ε)`` every numpy relMSE of the package goes through; the
+torch one is :func:`mcdenoise.losses.relative_squared_error`. Errors are averaged over images
+with :func:`mcdenoise.stats.geometric_mean`.
+
 Edge cases, by policy:
 
 * identical images: relMSE = SMAPE = MSE = 0, PSNR = ``math.inf`` (reports write the string
