@@ -1,5 +1,6 @@
-"""The one geometric mean (``mcdenoise/stats.py``): values, and each ``invalid`` policy on empty,
-zero, negative, NaN/None and infinite inputs."""
+"""Tests of ``mcdenoise/stats.py`` (named apart from tests/experiments/test_stats.py): the one
+geometric mean, its values, and each ``invalid`` policy on empty, zero, negative, NaN/None and
+infinite inputs."""
 
 from __future__ import annotations
 
