@@ -60,9 +60,15 @@ demo: install
 	@echo "demo: experiment data/experiments/demo.toml -> report: $(DEMO_OUT)/report.html"
 	$(BIN)/mcdenoise eval --experiment data/experiments/demo.toml -o $(DEMO_OUT)
 
-# Re-render the shipped sample data (needs the 'render' extra: Mitsuba 3).
+# Re-render the shipped sample data (needs the 'render' extra: Mitsuba 3): the scene specs
+# data/scenes/samples/*.toml through mcdenoise render into $(SAMPLES_WORK) (an ordinary render
+# folder; re-running skips finished images), then written in the layout of data/samples
+# (<scene>_spp4.exr, <scene>_spp16.exr, ref/<scene>.exr) by --samples-out. data/samples/README.md.
+SAMPLES_OUT  ?= data/samples
+SAMPLES_WORK ?= build/samples-render
 samples: install system-deps
-	$(BIN)/python data/make_samples.py --out data/samples
+	$(BIN)/mcdenoise render data/scenes/samples -o $(SAMPLES_WORK) --res 128 --spp 4,16 \
+	  --ref-spp 16384 --samples-out $(SAMPLES_OUT)
 
 # A small training set (gitignored): the curated specs in data/scenes plus DATA_RANDOM
 # procedural scenes, 128x128, noisy 4/16/64 spp, 1024 spp references (mcdenoise render;

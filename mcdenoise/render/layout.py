@@ -234,8 +234,8 @@ def export_samples(folder: str | os.PathLike[str], out: str | os.PathLike[str]) 
     Per image of the manifest: every level as its own single-part file
     ``out/<id>_spp<n>.exr`` (:func:`samples_file`; colour and ``color_var`` float32, the
     features and their variances half) and the reference as ``out/ref/<id>.exr`` (colour
-    only, float32); ZIP compression, every ``mcdenoise:*`` header attribute and
-    ``mitsuba:version`` kept. ``mcdenoise denoise out`` sees the noisy files only and
+    only, float32); ZIP compression, every ``mcdenoise:*`` header attribute kept and
+    ``mitsuba:version`` added from the manifest. ``mcdenoise denoise out`` sees the noisy files only and
     ``--ref out/ref`` finds each reference by the scene name.
 
     Raises:
@@ -248,8 +248,8 @@ def export_samples(folder: str | os.PathLike[str], out: str | os.PathLike[str]) 
     src, dst = Path(folder), Path(out)
     written: list[Path] = []
 
-    def save(path: Path, fb: Any) -> None:
-        extra = {k: fb.attributes[k] for k in ("mitsuba:version",) if k in fb.attributes}
+    def save(path: Path, fb: Any, record: Mapping[str, Any]) -> None:
+        extra = {"mitsuba:version": str(record.get("mitsuba_version", ""))}
         half = [n for n in fb.names() if n not in SAMPLES_FLOAT32]
         path.parent.mkdir(parents=True, exist_ok=True)
         report = save_buffers(path, fb, half=half, compression="zip", attributes=extra)
@@ -263,7 +263,7 @@ def export_samples(folder: str | os.PathLike[str], out: str | os.PathLike[str]) 
         image_id, files = record["id"], record["files"]
         for level in record["levels"]:
             fb = load_buffers(src / files["noisy"], part=level["part"])
-            save(dst / samples_file(image_id, int(level["spp"])), fb)
+            save(dst / samples_file(image_id, int(level["spp"])), fb, record)
         ref = load_buffers(src / files["reference"])
-        save(dst / reference_file(image_id), ref.subset(SAMPLES_REFERENCE))
+        save(dst / reference_file(image_id), ref.subset(SAMPLES_REFERENCE), record)
     return written

@@ -143,3 +143,35 @@ def test_random_scenes_are_rendered_and_recorded(tmp_path: Path) -> None:
         want.pop("source", None)
         assert parse_spec(rec["spec"]) == parse_spec(want)
         assert load_buffers(out / rec["files"]["noisy"], part="spp4").spp == 4
+
+
+@pytest.mark.mitsuba
+def test_samples_out_writes_the_layout_of_data_samples(tmp_path: Path) -> None:
+    """``--samples-out DIR``: one single-part file per level, the reference colour only;
+    colour float32, the features half (what data/samples holds)."""
+    from mcdenoise.io import probe_exr
+
+    spec(tmp_path / "scenes", "ball")
+    out, samples = tmp_path / "data", tmp_path / "samples"
+    r = run(
+        "render", str(tmp_path / "scenes"), "-o", str(out), *TINY, "--samples-out", str(samples)
+    )
+    assert r.exit_code == 0, r.output + r.stderr
+    assert f"samples layout: 3 file(s) in {samples}" in r.output
+    files = sorted(p.relative_to(samples).as_posix() for p in samples.rglob("*.exr"))
+    assert files == ["ball_spp1.exr", "ball_spp4.exr", "ref/ball.exr"]
+    level = load_buffers(out / "ball.exr", part="spp4")
+    flat = load_buffers(samples / "ball_spp4.exr")
+    assert flat.spp == 4 and sorted(flat.names()) == sorted(level.names())
+    assert torch_equal(flat["color"], level["color"])
+    assert flat.attributes["mcdenoise:seed"] == level.attributes["mcdenoise:seed"]
+    assert str(flat.attributes["mitsuba:version"]).startswith("3.")
+    (part,) = probe_exr(samples / "ball_spp4.exr")
+    types = {c.name: c.pixel_type for c in part.channels}
+    assert types["R"] == types["color_var.R"] == "float" and types["albedo.R"] == "half"
+    ref = load_buffers(samples / "ref" / "ball.exr")
+    assert ref.names() == ["color"] and ref.spp == 8
+
+
+def torch_equal(a, b) -> bool:
+    return bool((a == b).all())
