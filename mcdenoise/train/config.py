@@ -9,7 +9,9 @@ Example::
     cfg.to_json()
 
 Fields are model-agnostic except ``model`` (which model to train, e.g. ``kalantari-xbf``) and
-``hidden`` (the model's hidden layer sizes); a model reads only the fields it needs.
+``hidden`` (the model's hidden layer sizes); a model reads only the fields it needs. A new
+model starts from its own defaults where :data:`MODEL_DEFAULTS` has them (``kpcn``: the recipe
+of the shipped weights), then the file, then the overrides.
 """
 
 from __future__ import annotations
@@ -32,6 +34,21 @@ from mcdenoise.losses import LOSSES as LOSS_FUNCTIONS
 LOSSES = ("log-relmse", *LOSS_FUNCTIONS)
 #: Default loss per model family (prefix of the model name).
 DEFAULT_LOSS = {"kalantari": "log-relmse", "kpcn": "smape"}
+#: Defaults of a new model that differ from the field defaults (a file or flag value wins over
+#: them). ``kpcn``: the first command of the recipe of the shipped weights
+#: (``data/recipes/kpcn.md``: 5×5 kernels, 16000 steps, lr 1e-3 warmed up over 200 steps);
+#: its other settings are the field defaults. A run from a ``base`` model (continued training,
+#: a new encoder) keeps the field defaults: its architecture is the base's.
+MODEL_DEFAULTS: dict[str, dict[str, Any]] = {
+    "kpcn": {
+        "kernel": 5,
+        "margin": 8,
+        "steps": 16000,
+        "epoch_steps": 1000,
+        "lr": 1e-3,
+        "warmup": 200,
+    },
+}
 #: Mixed-precision modes (``amp``); autocast is only used on CUDA devices.
 AMP_MODES = ("off", "bf16", "fp16")
 
@@ -65,8 +82,9 @@ class TrainConfig:
             reproducible bit for bit for a given thread count).
         threads: torch intra-op threads (0 = leave torch's default).
         hidden: hidden layer sizes of the model's MLP.
-        kernel: filter window edge (odd; the cross-bilateral kernel or the NLM search window);
-            0 = the filter's default (21).
+        kernel: filter window edge (odd; the cross-bilateral kernel, the NLM search window or
+            the kpcn kernel); 0 = the filter's default (21; a kpcn run from ``base``: the
+            base's). A new kpcn model defaults to 5 (:data:`MODEL_DEFAULTS`).
         passes: cross-bilateral passes (1 or 2; the second measures colour distances on the
             first pass's result and has its own learned spatial and colour bandwidths).
         loss: ``relmse`` (mean over the batch's pixels), ``log-relmse`` (mean over crops of
@@ -247,8 +265,18 @@ def _type_name(kind: Any) -> str:
     return getattr(kind, "__name__", str(kind))
 
 
+def model_defaults(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The :data:`MODEL_DEFAULTS` that apply to a config given as ``values``: those of its
+    model (default ``kalantari-xbf``) when it trains a new model (no ``base``), else none."""
+    if values.get("base"):
+        return {}
+    model = values.get("model", TrainConfig.model)
+    return dict(MODEL_DEFAULTS.get(model, {})) if isinstance(model, str) else {}
+
+
 def make_config(values: Mapping[str, Any], *, source: str = "config") -> TrainConfig:
-    """A :class:`TrainConfig` from a mapping (unknown keys are an :class:`InputError`)."""
+    """A :class:`TrainConfig` from a mapping, over the model's defaults
+    (:func:`model_defaults`); unknown keys are an :class:`InputError`."""
     hints = get_type_hints(TrainConfig)
     names = [f.name for f in dataclasses.fields(TrainConfig)]
     unknown = sorted(set(values) - set(names))
@@ -256,14 +284,16 @@ def make_config(values: Mapping[str, Any], *, source: str = "config") -> TrainCo
         raise InputError(
             f"{source}: unknown key(s) {', '.join(unknown)}; known: {', '.join(names)}"
         )
-    return TrainConfig(**{k: _coerce(k, v, hints[k]) for k, v in values.items()})
+    merged = {**model_defaults(values), **values}
+    return TrainConfig(**{k: _coerce(k, v, hints[k]) for k, v in merged.items()})
 
 
 def load_config(
     path: str | os.PathLike[str] | None = None,
     overrides: Mapping[str, Any] | None = None,
 ) -> TrainConfig:
-    """Defaults, then the TOML (or JSON) file ``path``, then ``overrides`` (flag strings ok).
+    """Defaults (the model's, see :func:`model_defaults`), then the TOML (or JSON) file
+    ``path``, then ``overrides`` (flag strings ok).
 
     Raises:
         InputError: unreadable file, TOML syntax error, unknown key or bad value.

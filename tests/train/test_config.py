@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
 from mcdenoise.errors import InputError
 from mcdenoise.train.config import TrainConfig, load_config
@@ -57,3 +58,37 @@ def test_bad_toml_names_the_file(tmp_path: Path) -> None:
 
 def test_defaults_are_valid() -> None:
     assert TrainConfig().steps > 0
+
+
+#: Settings of a recipe that describe the machine or the data, not the model or its training.
+NOT_RECIPE = {"data", "threads"}
+
+
+def test_kpcn_defaults_are_the_recipe_of_the_shipped_weights() -> None:
+    """``mcdenoise train --model kpcn`` with no other setting trains what the shipped weights'
+    first stage trained (data/recipes/kpcn.md; the card records the resolved config of each
+    stage: the shipped model is its fine-tuning, ``base_training`` the model from scratch)."""
+    import mcdenoise
+
+    weights = Path(mcdenoise.__file__).parent / "models" / "weights" / "kpcn.pt"
+    card = torch.load(weights, map_location="cpu", weights_only=True)["card"]
+    recipe = card["training"]["base_training"]["config"]
+    cfg = load_config(None, {"model": "kpcn"}).to_dict()
+    keys = sorted(set(recipe) - NOT_RECIPE)
+    assert {k: cfg[k] for k in keys} == {k: recipe[k] for k in keys}
+    assert cfg["kernel"] == card["kernel"] == 5
+    # a file or a flag still wins over the model's defaults
+    assert load_config(None, {"model": "kpcn", "kernel": "11"}).kernel == 11
+
+
+def test_model_defaults_apply_to_new_models_only(tmp_path: Path) -> None:
+    plain = TrainConfig()
+    assert load_config(None, {}) == plain  # kalantari-xbf: the field defaults
+    # from a base (continued training, a new encoder) the architecture is the base's
+    cont = load_config(None, {"model": "kpcn", "base": "run"})
+    assert (cont.kernel, cont.steps, cont.lr) == (0, plain.steps, plain.lr)
+    # a resolved config.json (every field) is reproduced exactly, whatever the defaults
+    f = tmp_path / "config.json"
+    f.write_text(TrainConfig(model="kpcn", steps=7).to_json())
+    again = load_config(f)
+    assert (again.kernel, again.steps, again.lr) == (0, 7, plain.lr)
