@@ -25,7 +25,8 @@ Typical use::
     print(summary.paths["html"])
 """
 
-from mcdenoise.experiments.runner import MethodEntry, RunSummary, plan_methods, run_experiment
+from mcdenoise.experiments.entries import MethodEntry, plan_methods
+from mcdenoise.experiments.runner import RunSummary, run_experiment
 from mcdenoise.experiments.spec import (
     ExperimentError,
     ExperimentSpec,

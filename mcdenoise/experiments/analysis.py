@@ -33,6 +33,7 @@ import numpy as np
 from mcdenoise.eval.metrics import METRICS
 from mcdenoise.eval.results import decode_float, jsonable
 from mcdenoise.experiments.dataset import Level, SceneData
+from mcdenoise.experiments.entries import MethodEntry
 from mcdenoise.experiments.quality import (
     FLOOR_FACTOR,
     NoisyCurve,
@@ -40,7 +41,6 @@ from mcdenoise.experiments.quality import (
     limited_by_reference,
     reference_noise_floor,
 )
-from mcdenoise.experiments.runner import MethodEntry
 from mcdenoise.experiments.spec import NOISY, ExperimentSpec
 from mcdenoise.experiments.stats import RatioStats, compare_methods
 from mcdenoise.experiments.tradeoff import (

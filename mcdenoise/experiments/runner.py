@@ -5,7 +5,7 @@ measure it, and assemble the report.
 
 1. :func:`~mcdenoise.experiments.dataset.prepare_data` renders the missing images into the
    render folder (``DIR/data`` by default; resumable, the layout of ``mcdenoise render``);
-2. :func:`plan_methods` turns the spec's methods and sweeps into labelled entries (``noisy``
+2. :func:`~mcdenoise.experiments.entries.plan_methods` turns the spec's methods and sweeps into labelled entries (``noisy``
    first: plain rendering, denoise time 0); methods that cannot run here (e.g. OIDN without
    ``pyoidn``) are *skipped*, with the reason, and listed in the report;
 3. every **unit** — one (scene, spp level, method) — is run: the level is read, the method is
@@ -48,7 +48,8 @@ from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import compute_metrics
 from mcdenoise.eval.results import jsonable
 from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepare_data
-from mcdenoise.experiments.spec import NOISY, ExperimentError, ExperimentSpec
+from mcdenoise.experiments.entries import MethodEntry, plan_methods
+from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
 from mcdenoise.experiments.timing import machine_info, time_runs, torch_threads
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.models.weights import weights_digest
@@ -57,95 +58,6 @@ from mcdenoise.models.weights import weights_digest
 UNIT_SCHEMA = "mcdenoise.experiment-unit/1"
 WORK = "work"
 OUTPUTS = "outputs"
-
-
-@dataclass(frozen=True)
-class MethodEntry:
-    """One column of the experiment: a registry method with parameter overrides, or noisy.
-
-    Attributes:
-        label: how the report names it (``nlm``, ``xbf[kernel_size=5]``, ``noisy``).
-        method: registry name (``cross-bilateral`` for ``xbf``), or ``"noisy"``.
-        overrides: parameters given by the spec (defaults fill the rest).
-        summary: the registry's one-line description.
-    """
-
-    label: str
-    method: str
-    overrides: Mapping[str, Any] = field(default_factory=dict)
-    summary: str = ""
-
-    @property
-    def is_noisy(self) -> bool:
-        return self.method == NOISY
-
-    def params(self) -> dict[str, Any]:
-        """The resolved parameters (defaults updated with the overrides); ``{}`` for noisy."""
-        if self.is_noisy:
-            return {}
-        from mcdenoise.denoise import get_method
-
-        return get_method(self.method).resolve_params(self.overrides)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "label": self.label,
-            "method": self.method,
-            "overrides": dict(self.overrides),
-            "params": self.params(),
-            "summary": self.summary,
-        }
-
-
-def _value_text(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float) and v.is_integer():
-        return repr(v)
-    return str(v)
-
-
-def plan_methods(spec: ExperimentSpec) -> tuple[list[MethodEntry], dict[str, str]]:
-    """The spec's methods as entries (``noisy`` first, then the methods in registry or spec
-    order, then the sweeps) and the skipped ones: label -> reason it cannot run here.
-
-    ``methods = "all"`` takes every registered method, so a method added to the registry is
-    in the next experiment without any change here.
-
-    Raises:
-        ExperimentError: two entries would get the same label.
-    """
-    from mcdenoise.denoise import get_method, methods
-
-    entries = [MethodEntry(NOISY, NOISY, {}, "plain Monte Carlo rendering, no denoiser")]
-    skipped: dict[str, str] = {}
-    if spec.methods == "all":
-        names = [m.name for m in methods()]
-    else:
-        names = [n for n in spec.methods if n != NOISY]
-    for name in names:
-        m = get_method(name)
-        overrides = dict(spec.params.get(name) or spec.params.get(m.name) or {})
-        reason = m.unavailable()
-        if reason:
-            skipped[name] = reason
-            continue
-        entries.append(MethodEntry(name, m.name, overrides, m.summary))
-    for sw in spec.sweeps:
-        m = get_method(sw.method)
-        base = {**(spec.params.get(sw.method) or spec.params.get(m.name) or {}), **sw.params}
-        for value in sw.values:
-            label = f"{sw.method}[{sw.param}={_value_text(value)}]"
-            reason = m.unavailable()
-            if reason:
-                skipped[label] = reason
-                continue
-            entries.append(MethodEntry(label, m.name, {**base, sw.param: value}, m.summary))
-    labels = [e.label for e in entries]
-    dup = sorted({x for x in labels if labels.count(x) > 1})
-    if dup:
-        raise ExperimentError(f"{spec.source}: method label(s) {', '.join(dup)} appear twice")
-    return entries, skipped
 
 
 def slug(label: str) -> str:
