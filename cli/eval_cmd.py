@@ -91,22 +91,7 @@ def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress)
 def _experiment(spec_path, out_dir, metrics, progress):
     from mcdenoise.experiments import load_experiment, run_experiment
 
-    spec = load_experiment(spec_path)
     show = sys.stderr.isatty() if progress is None else progress
-    summary = run_experiment(spec, out_dir, progress=show, metrics=metrics)
-    result = summary.result
-    rendered = (
-        f"rendered {len(summary.rendered)} image(s), reused {len(summary.render_skipped)}; "
-        if summary.rendered or summary.render_skipped
-        else ""
-    )
-    click.echo(
-        f"experiment {spec.name}: {len(result.scenes)} scene(s) x {len(result.spps)} spp level(s) "
-        f"x {len(result.labels)} method(s); {rendered}ran {len(summary.ran)} unit(s), reused "
-        f"{len(summary.reused)} finished"
-    )
-    for label, reason in result.skipped.items():
-        click.echo(f"skipped {label}: {reason}")
-    for kind in ("json", "csv"):
-        click.echo(f"{kind}: {summary.paths[kind]}")
-    click.echo(f"report: {summary.paths['html']}")
+    summary = run_experiment(load_experiment(spec_path), out_dir, progress=show, metrics=metrics)
+    for line in summary.messages():
+        click.echo(line)

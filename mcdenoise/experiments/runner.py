@@ -47,8 +47,10 @@ from mcdenoise import __version__
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import compute_metrics
 from mcdenoise.eval.results import jsonable
+from mcdenoise.experiments.analysis import assemble
 from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepare_data
 from mcdenoise.experiments.entries import MethodEntry, plan_methods
+from mcdenoise.experiments.report import write_experiment_report
 from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
 from mcdenoise.experiments.timing import machine_info, time_runs, torch_threads
 from mcdenoise.io.atomic import write_text_atomic
@@ -298,6 +300,26 @@ class RunSummary:
     render_skipped: list[str] = field(default_factory=list)
     paths: dict[str, Path] = field(default_factory=dict)
     result: Any = None
+    name: str = ""
+
+    def messages(self) -> list[str]:
+        """The lines ``mcdenoise eval --experiment`` prints: what ran and was reused, the
+        skipped methods, the report's files."""
+        result = self.result
+        rendered = (
+            f"rendered {len(self.rendered)} image(s), reused {len(self.render_skipped)}; "
+            if self.rendered or self.render_skipped
+            else ""
+        )
+        lines = [
+            f"experiment {self.name}: {len(result.scenes)} scene(s) x {len(result.spps)} spp "
+            f"level(s) x {len(result.labels)} method(s); {rendered}ran {len(self.ran)} unit(s), "
+            f"reused {len(self.reused)} finished"
+        ]
+        lines += [f"skipped {label}: {reason}" for label, reason in result.skipped.items()]
+        lines += [f"{kind}: {self.paths[kind]}" for kind in ("json", "csv")]
+        lines.append(f"report: {self.paths['html']}")
+        return lines
 
 
 def plan_units(scenes: Sequence[SceneData], entries: Sequence[MethodEntry]) -> list[Unit]:
@@ -388,8 +410,6 @@ def run_experiment(
     """
     from mcdenoise.denoise import resolve_device
     from mcdenoise.eval.metrics import resolve_metrics
-    from mcdenoise.experiments.analysis import assemble
-    from mcdenoise.experiments.report import write_experiment_report
 
     root = Path(out)
     try:
@@ -403,7 +423,7 @@ def run_experiment(
         raise ExperimentError("the metrics must include relmse (the curves and tables use it)")
     entries, skipped = plan_methods(spec)
     device = resolve_device(spec.device)
-    summary = RunSummary()
+    summary = RunSummary(name=spec.name)
     folder, ids, rendered = prepare_data(spec, root, progress=progress)
     if rendered is not None:
         summary.rendered = list(rendered.rendered)
