@@ -1,9 +1,10 @@
-"""Procedural random scenes (mcdenoise/render/random_scenes.py).
+"""Procedural random scenes (the package mcdenoise/render/random_scenes/).
 
-Specs are plain data, so most checks need no renderer: determinism, schema round trip,
-effect plans, the geometry promises (camera outside every object, every subject in frame,
-thin lens focused on a subject), non-negative SH lighting, and that the empirical
-frequencies over many specs match the documented distribution. A few tiny renders
+Specs are plain data, so most checks need no renderer: determinism (and a pinned hash of the
+specs of one seed), schema round trip, effect plans, the geometry promises (camera outside
+every object, every subject in frame, thin lens focused on a subject), non-negative SH
+lighting, that the documented distribution is exactly the data the generator draws from, and
+that the empirical frequencies over many specs match it. A few tiny renders
 (``@pytest.mark.mitsuba``, ``scalar_rgb``, 16×16 at 2 spp) check that Mitsuba accepts the
 specs and lit scenes are finite and not black.
 """
@@ -11,6 +12,8 @@ specs and lit scenes are finite and not black.
 from __future__ import annotations
 
 import collections
+import dataclasses
+import hashlib
 import importlib.util
 import json
 import math
@@ -24,6 +27,7 @@ import pytest
 from mcdenoise.errors import InputError, McdenoiseError
 from mcdenoise.render import random_scenes as rs
 from mcdenoise.render.effects import plan_effects
+from mcdenoise.render.random_scenes import distribution as dist_module
 from mcdenoise.render.sh import sh_to_latlong_with_stats
 from mcdenoise.render.spec import EFFECTS, LIGHTS, MATERIALS, SHAPES, TEXTURES, parse_spec
 
@@ -65,6 +69,29 @@ def test_global_random_state_is_not_used():
 def test_index_does_not_depend_on_what_was_generated_before():
     later = rs.random_specs(3, seed=5, start=40)
     assert later == [rs.random_spec(5, i) for i in (40, 41, 42)]
+
+
+def test_specs_of_seed_0_are_pinned():
+    """The generator's output for a fixed seed never changes unnoticed (refactors included).
+
+    The hash was recorded from the single-module generator before it was split into the
+    package (``sha256`` of the sorted-key JSON of specs 0..19 of seed 0, asset folder replaced
+    by ``<assets>``). A deliberate change of the distribution changes it: record the new one.
+    """
+    root = str(rs.asset_dir().resolve())
+    text = "\n".join(
+        json.dumps(rs.random_spec(0, i).to_dict(), sort_keys=True).replace(root, "<assets>")
+        for i in range(20)
+    )
+    first = rs.random_scene(0, 0)
+    assert (first.archetype, first.variant, first.subjects) == (
+        "tabletop",
+        "spot",
+        (1, 2, 3, 4, 5, 6),
+    )
+    assert first.spec.camera.fov == 45.11 and first.spec.camera.origin == (3.0532, 3.1606, -0.1696)
+    digest = hashlib.sha256(text.encode()).hexdigest()
+    assert digest == "fe34426b2bc688f10aece573443d8da3221ce17ee3ad8c94a6dbdb41062f02ae"
 
 
 @pytest.mark.parametrize("seed,index", [(-1, 0), (0, -3), (1.5, 0), (True, 0), ("1", 0)])
@@ -210,6 +237,70 @@ def test_random_sh_coefficients_mean_radiance_and_positivity():
 
 
 # ------------------------------------------------------------------------- distribution
+
+
+def _variants(value, path=""):
+    """(path, value with one parameter changed) for every parameter inside ``value``."""
+    if dataclasses.is_dataclass(value):
+        for f in dataclasses.fields(value):
+            for sub, changed in _variants(getattr(value, f.name), f"{path}.{f.name}"):
+                yield sub, dataclasses.replace(value, **{f.name: changed})
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            for sub, changed in _variants(item, f"{path}[{key}]"):
+                yield sub, {**value, key: changed}
+    elif isinstance(value, tuple):
+        for i, item in enumerate(value):
+            for sub, changed in _variants(item, f"{path}[{i}]"):
+                yield sub, (*value[:i], changed, *value[i + 1 :])
+    elif isinstance(value, str):
+        yield path, value + "x"
+    elif isinstance(value, int):
+        yield path, value + 1
+    else:
+        yield path, value * 0.5 + 0.013
+
+
+def test_the_documented_distribution_is_the_data():
+    """One source of truth: the text is rendered from DISTRIBUTION, writes no number of its
+    own, and shows every parameter (changing any one changes the text)."""
+    text = rs.describe_distribution()
+    assert dist_module.template_numbers() == []
+    assert text in dist_module.__doc__
+    seen = 0
+    for path, changed in _variants(rs.DISTRIBUTION):
+        assert rs.describe_distribution(changed) != text, f"{path} is not in the text"
+        seen += 1
+    assert seen > 150  # every leaf of the nested data was tried
+
+
+def test_the_generator_draws_from_the_data():
+    """Changing the data changes the scenes: the code has no second copy of these numbers."""
+    d = rs.DISTRIBUTION
+    replace = dataclasses.replace
+    only_tabletop = replace(
+        d,
+        archetypes={"tabletop": 1.0},
+        subjects=replace(d.subjects, shapes={"cube": 1.0}),
+        materials=replace(d.materials, types={"dielectric": 1.0}),
+        camera=replace(d.camera, thinlens_prob=1.0),
+        lights=replace(d.lights, warm=(1.0, 1.0, 1.0), cool=(1.0, 1.0, 1.0)),
+        effects=replace(d.effects, rr_depth=3, dielectric_min_depth=11),
+    )
+    for i in range(15):
+        sc = rs.random_scene(4, i, distribution=only_tabletop)
+        spec = sc.spec
+        assert sc.archetype == "tabletop" and spec.camera.type == "thinlens"
+        assert spec.render.rr_depth == 3
+        assert all(spec.objects[j].shape == "cube" for j in sc.subjects)
+        assert all(spec.objects[j].material.type == "dielectric" for j in sc.subjects)
+        if "indirect" in spec.effects:
+            assert spec.render.max_depth >= 11
+        for lt in spec.lights:  # white lights of luminance 1
+            if lt.type in ("point", "spot"):
+                rgb = np.asarray(lt.params["intensity"])
+                assert np.allclose(rgb, rgb[0], rtol=1e-3), rgb
+    assert rs.random_scene(4, 0) == rs.random_scene(4, 0, distribution=d)
 
 
 def _share(counter: collections.Counter, key: str) -> float:
