@@ -3,10 +3,11 @@
 :func:`load_buffers` reads any supported renderer's file through a profile
 (:mod:`mcdenoise.io.profiles`); :func:`save_buffers` writes the ``mcdenoise`` canonical layout.
 
-Window policy (HARD_CASES 6): buffers hold exactly the pixels of the *data window* (no padding
-to, or cropping by, the display window). Both windows are kept on the FeatureBuffers
-(``data_window``, ``display_window``) and written back unchanged by :func:`save_buffers`, so
-offsets and negative origins survive a read -> write -> read round trip. A file whose buffers
+Window policy (docs/hard-cases.md item 6): buffers hold exactly the pixels of the *data
+window* (no padding to, or cropping by, the display window). Both windows are kept on the
+FeatureBuffers (``data_window``, ``display_window``) and written back unchanged by
+:func:`save_buffers`, so offsets and negative origins survive a read -> write -> read round
+trip. A file whose buffers
 would come from parts with different data windows is refused (never broadcast or padded).
 
 Multi-part files: with ``part=None`` channels are looked up by name in every part (a name

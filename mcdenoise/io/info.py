@@ -3,7 +3,8 @@
 :func:`describe` reports the detected profile and why, the parts with their windows, which
 buffers were found (from which channels, stored as half or float, converted how), which known
 buffers are missing, the channels no buffer uses, NaN/Inf/negative counts per buffer
-(HARD_CASES 10: values are loaded as they are and only counted here), and the sample count.
+(docs/hard-cases.md item 10: values are loaded as they are and only counted here), and the
+sample count.
 Unlike :func:`mcdenoise.io.load_buffers` it does not stop at an incomplete feature or a missing
 colour: those are listed under ``problems``. Unreadable files still raise ExrError.
 """

@@ -1,4 +1,5 @@
-"""Atomic writes (HARD_CASES 12): old or new file, never a partial one, no stray temporaries."""
+"""Atomic writes (docs/hard-cases.md item 12): old or new file, never a partial one, no stray
+temporaries."""
 
 from __future__ import annotations
 

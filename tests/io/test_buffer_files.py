@@ -1,4 +1,5 @@
-"""Tests of mcdenoise.io.buffer_files: load_buffers / save_buffers (HARD_CASES 4-6, 9-11)."""
+"""Tests of mcdenoise.io.buffer_files: load_buffers / save_buffers (docs/hard-cases.md items
+4-6, 9-11)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Tests of mcdenoise.io.exr: low-level EXR read/write (HARD_CASES 1-3, 6-9, 11, 12)."""
+"""Tests of mcdenoise.io.exr: low-level EXR read/write (docs/hard-cases.md items 1-3, 6-9, 11,
+12)."""
 
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def stray_temp_files(folder: Path) -> list[str]:
     return [p.name for p in folder.iterdir() if p.name.startswith(TMP_PREFIX)]
 
 
-# --- round trips (HARD_CASES 7, 8, 11) ---------------------------------------------------------
+# --- round trips (docs/hard-cases.md items 7, 8, 11) ----------------------------------------------
 @pytest.mark.parametrize(("w", "h"), [(257, 89), (191, 347)])
 @pytest.mark.parametrize("tile", [None, (32, 16)])
 @pytest.mark.parametrize("order", ["increasing", "decreasing"])
@@ -156,7 +157,7 @@ def test_bad_write_arguments_are_input_errors(tmp_path):
     assert not (tmp_path / "x.exr").exists()
 
 
-# --- windows (HARD_CASES 6) ----------------------------------------------------------------
+# --- windows (docs/hard-cases.md item 6) ----------------------------------------------------------
 def test_data_and_display_windows_with_negative_origin_survive(tmp_path, rng):
     a = rng.random((7, 11), dtype=np.float32)
     write_exr(
@@ -167,7 +168,7 @@ def test_data_and_display_windows_with_negative_origin_survive(tmp_path, rng):
     assert img.pixels["Y"].shape == (7, 11) and bits_equal(img.pixels["Y"], a)
 
 
-# --- multi-part (HARD_CASES 9) -------------------------------------------------------------
+# --- multi-part (docs/hard-cases.md item 9) -------------------------------------------------------
 def test_parts_are_selected_by_name_or_index(tmp_path, write_multipart):
     path = write_multipart(
         tmp_path / "mp.exr",
@@ -191,7 +192,7 @@ def test_parts_are_selected_by_name_or_index(tmp_path, write_multipart):
         read_exr(path, part="aux", channels=["R"])
 
 
-# --- bad files (HARD_CASES 1, 2) ----------------------------------------------------------
+# --- bad files (docs/hard-cases.md items 1, 2) ----------------------------------------------------
 @pytest.fixture
 def good_file(tmp_path, rng) -> Path:
     path = tmp_path / "good.exr"
@@ -315,7 +316,7 @@ def test_failed_reads_leave_no_pending_openimageio_error(tmp_path, good_file):
     assert res.returncode == 0 and res.stdout == "" and res.stderr == ""
 
 
-# --- pixel limit (HARD_CASES 3) ------------------------------------------------------------
+# --- pixel limit (docs/hard-cases.md item 3) ------------------------------------------------------
 def _forbid_pixel_reads(monkeypatch):
     def boom(path):
         raise AssertionError("pixels must not be read for a refused file")
@@ -356,7 +357,7 @@ def test_pixel_limit_is_configurable(tmp_path, monkeypatch):
         read_exr(path)
 
 
-# --- writing safely (HARD_CASES 12, 33) ------------------------------------------------------
+# --- writing safely (docs/hard-cases.md items 12, 33) ---------------------------------------------
 def test_unwritable_destinations(tmp_path):
     a = {"Y": np.zeros((2, 2), np.float32)}
     with pytest.raises(ExrError, match="cannot write") as exc:

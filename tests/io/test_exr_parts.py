@@ -1,4 +1,5 @@
-"""Multi-part EXR writing: ``write_exr_parts`` and ``save_buffers_parts`` (HARD_CASES 9, 11, 12)."""
+"""Multi-part EXR writing: ``write_exr_parts`` and ``save_buffers_parts`` (docs/hard-cases.md
+items 9, 11, 12)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Tests of mcdenoise.io.info.describe (what ``mcdenoise info`` prints; HARD_CASES 10)."""
+"""Tests of mcdenoise.io.info.describe (what ``mcdenoise info`` prints; docs/hard-cases.md
+item 10)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Resolution of a profile against a file: completeness checks (mcdenoise/io/profiles/resolve.py)."""
+"""Resolution of a profile against a file: completeness checks
+(mcdenoise/io/profiles/resolve.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from mcdenoise.io import IncompleteFeatureError, MissingFeatureError, load_buffe
 from mcdenoise.io.profiles import resolve_channels
 
 
-# --- completeness (HARD_CASES 4) ----------------------------------------------------------
+# --- completeness (docs/hard-cases.md item 4) -----------------------------------------------------
 def test_incomplete_feature_is_an_error_listing_missing_and_present(tmp_path, rng):
     ch = planes(rng, ["R", "G", "B", "albedo.R", "albedo.G", "depth.Z"])
     path = write(tmp_path / "i.exr", ch, {"mcdenoise:layout": "1"})
