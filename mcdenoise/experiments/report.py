@@ -41,6 +41,7 @@ from mcdenoise.experiments.quality import FLOOR_FACTOR
 from mcdenoise.experiments.spec import NOISY
 from mcdenoise.experiments.stats import BETTER, IS_BASELINE, WORSE
 from mcdenoise.io.atomic import write_text_atomic
+from mcdenoise.stats import geometric_mean
 
 #: Columns of results.csv before the metric columns.
 CSV_HEAD = (
@@ -285,11 +286,9 @@ def _overall_plots(result: ExperimentResult, out: Path) -> list[str]:
         for o in rows
     ]
     floors = [s.noise_floor for s in result.scenes if s.noise_floor is not None]
-    floor = float(np.exp(np.mean(np.log(floors)))) if floors and min(floors) > 0 else None
+    floor = geometric_mean(floors, invalid="none")
     noisy = [o for o in rows if o.method == NOISY and o.relmse]
-    c = None
-    if noisy:
-        c = float(np.exp(np.mean([math.log(o.relmse * o.spp) for o in noisy if o.relmse])))
+    c = geometric_mean([o.relmse * o.spp for o in noisy]) if noisy else None
     names = [
         "plot_overall_error_spp.png",
         "plot_overall_error_time.png",

@@ -29,8 +29,8 @@ from mcdenoise.errors import InputError
 from mcdenoise.losses import LOSSES as LOSS_FUNCTIONS
 
 #: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`):
-#: those of :mod:`mcdenoise.losses`, and ``log-relmse``, which the Kalantari trainer computes
-#: per crop itself.
+#: those of :mod:`mcdenoise.losses`, and ``log-relmse``
+#: (:func:`mcdenoise.losses.crop_log_relmse`, computed per crop by the trainers).
 LOSSES = ("log-relmse", *LOSS_FUNCTIONS)
 #: Default loss per model family (prefix of the model name).
 DEFAULT_LOSS = {"kalantari": "log-relmse", "kpcn": "smape"}
