@@ -1,7 +1,8 @@
 """The command line as users meet it: one-line errors, exit codes, nothing half-written.
 
-HARD_CASES 33 (bad arguments -> one line, non-zero exit, no traceback) and 34 (an interrupted
-folder run leaves complete outputs only), plus the happy paths of denoise / info / eval.
+docs/hard-cases.md items 33 (bad arguments -> one line, non-zero exit, no traceback) and 34
+(an interrupted folder run leaves complete outputs only), plus the happy paths of denoise /
+info / eval.
 """
 
 from __future__ import annotations
@@ -120,7 +121,7 @@ def test_eval_writes_report(tmp_path):
         assert (rep / name).is_file()
 
 
-# --- HARD_CASES 33: bad arguments ----------------------------------------------------------
+# --- docs/hard-cases.md item 33: bad arguments -----------------------------------------------
 
 
 def test_missing_input(tmp_path):
@@ -225,7 +226,7 @@ def test_unknown_method(tmp_path):
 
 def test_missing_feature_names_channels(tmp_path, monkeypatch):
     """A method needing albedo on a colour-only file: the one-line error names the missing
-    buffer and lists what the file does have (HARD_CASES 4)."""
+    buffer and lists what the file does have (docs/hard-cases.md item 4)."""
     from mcdenoise import registry
 
     needs_albedo = registry.Method(
@@ -268,7 +269,7 @@ def test_real_process_prints_one_line_and_exit_code(tmp_path):
     assert proc.stderr.startswith("mcdenoise: error:")
 
 
-# --- HARD_CASES 34: interrupted folder run -------------------------------------------------
+# --- docs/hard-cases.md item 34: interrupted folder run --------------------------------------
 
 
 def test_interrupted_folder_run_leaves_only_complete_outputs(tmp_path):
