@@ -310,3 +310,26 @@ def test_a_render_folder_of_other_settings_is_refused(tmp_path: Path):
     )
     with pytest.raises(ExperimentError, match="holds images rendered with other settings"):
         run_experiment(load_experiment(path), tmp_path / "out")
+
+
+def test_every_unit_goes_through_the_one_entry_point(
+    tmp_path: Path, fake_methods, monkeypatch: pytest.MonkeyPatch
+):
+    """The runner denoises through ``mcdenoise.denoise.denoise_sequence`` (a one-frame
+    sequence per run), like ``mcdenoise denoise``: the same checks, sanitising and timing."""
+    import mcdenoise.denoise as dn
+
+    seen: list[tuple[str, int]] = []
+    real = dn.denoise_sequence
+
+    def spy(frames, method="auto", **kw):
+        frames = list(frames)
+        seen.append((method.name if isinstance(method, dn.Method) else method, len(frames)))
+        return real(frames, method, **kw)
+
+    monkeypatch.setattr(dn, "denoise_sequence", spy)
+    fake_methods.add("box", blend)
+    spec = load_experiment(spec_file(tmp_path, '["box"]', scenes=("alpha",)))
+    run_experiment(spec, tmp_path / "out")
+    # 3 spp levels, 1 warm-up + 2 timed runs each, one frame per call
+    assert seen == [("box", 1)] * 9 and fake_methods.calls == {"box": 9}
