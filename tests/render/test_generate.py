@@ -1,4 +1,5 @@
-"""Tests of ``mcdenoise.render.generate`` (and the moment maths of ``render.moments``).
+"""Tests of ``mcdenoise.render.generate`` and the modules it runs (``render.passes``,
+``render.layout``), and of the moment maths of ``render.moments``.
 
 Renders are tiny (16×16 to 32×32 pixels, a few spp) in ``scalar_rgb``, which needs no JIT
 compilation; the scenes plan to Mitsuba's own ``path`` integrator except the AO test.

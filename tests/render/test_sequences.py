@@ -29,7 +29,7 @@ from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.effects import plan_effects
 from mcdenoise.render.generate import generate
 from mcdenoise.render.jobs import jobs_from_specs
-from mcdenoise.render.layout import frame_file, frame_reference_file
+from mcdenoise.render.layout import export_samples, frame_file, frame_reference_file
 from mcdenoise.render.manifest import load_manifest
 from mcdenoise.render.spec import SpecError, parse_spec
 
@@ -560,6 +560,9 @@ def test_shards_split_whole_sequences(tmp_path: Path, variant: str) -> None:
     m = load_manifest(out)
     assert [r["id"] for r in m["images"]] == ["s0", "s1", "s2"]
     assert all(r["complete"] and len(r["frames"]) == 2 for r in m["images"])
+    # The samples layout (data/samples) holds stills only.
+    with pytest.raises(RenderError, match="s0 is a sequence"):
+        export_samples(out, tmp_path / "samples")
 
 
 @pytest.mark.mitsuba
