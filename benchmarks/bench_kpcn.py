@@ -81,6 +81,7 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.exr import write_exr
 from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.models.weights import load_kpcn, shipped_model_path
+from mcdenoise.prep.kpcn import source_for
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.dataset import Entry, scan_dataset
 
@@ -481,9 +482,11 @@ def run(args: argparse.Namespace, tmp: Path, with_flip: bool) -> int:
             bb = basic_copy(e, b, args.basic_cache, mversion)
             loaded.append(Item(e, e.spp or 0, b, bb, load_buffers(e.reference)["color"]))
             for m in (main_model, *ablations):
-                sources.setdefault(m.label, set()).add(m.model.source_for(b))
-                if "basic" in m.model.card.sources and m.model.source_for(bb) != "basic":
-                    raise RuntimeError(f"{m.label}: chose {m.model.source_for(bb)!r} on {e.name}")
+                sources.setdefault(m.label, set()).add(source_for(b, m.model.card.sources))
+                if "basic" in m.model.card.sources:
+                    chosen = source_for(bb, m.model.card.sources)
+                    if chosen != "basic":
+                        raise RuntimeError(f"{m.label}: chose {chosen!r} on {e.name}")
         else:
             used.append(image)
             items += loaded
@@ -502,7 +505,7 @@ def run(args: argparse.Namespace, tmp: Path, with_flip: bool) -> int:
         ("oidn", False, "oidn", {}, with_flip),
         ("oidn-basic", True, "oidn", {}, with_flip),
         ("kalantari-xbf", False, "kalantari-xbf", {"model": args.xbf_model}, with_flip),
-        # the next method for such files after kpcn (mcdenoise/methods.py)
+        # the next method for such files after kpcn (mcdenoise/methods/)
         ("nlm-basic", True, "nlm", {}, with_flip),
     ]
     for m in ablations:

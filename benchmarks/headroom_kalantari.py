@@ -37,11 +37,12 @@ import torch
 from torch import Tensor
 
 from mcdenoise.eval.metrics import relmse
-from mcdenoise.filters.prepare import box_mean
+from mcdenoise.filters.box import box_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import relative_squared_error, relmse_map
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
+from mcdenoise.prep.kalantari import prepare_for_model
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.dataset import scan_dataset
 
@@ -119,7 +120,7 @@ def gaussian_check(model: KalantariModel, heldout: Path, image: str, s: float) -
     e = sorted(entries, key=lambda e: e.spp or 0)[len(entries) // 2]
     b, ref = load_pair(e.path, e.part, e.reference)
     with torch.no_grad():
-        batch = {k: v[None] for k, v in model.prepare(b).items()}
+        batch = {k: v[None] for k, v in prepare_for_model(model.card, b).items()}
         a = batch["factor"]
         gen = torch.Generator().manual_seed(1)
         noise = batch["irr_var"].sqrt() * torch.randn(a.shape, generator=gen)
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         t0 = time.perf_counter()
         with torch.no_grad():
-            batch = {k: v[None] for k, v in model.prepare(b).items()}
+            batch = {k: v[None] for k, v in prepare_for_model(model.card, b).items()}
             o = model.offsets(batch["features"])
             pilot = box_mean(model.filter(batch, o), PILOT_RADIUS)
             maps = [

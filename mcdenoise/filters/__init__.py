@@ -1,4 +1,4 @@
-"""Classical filters (cross-bilateral, NLM) and the shared per-pixel kernel routine.
+"""Tensor operators of the classical filters: per-pixel kernels, cross-bilateral, NLM.
 
 * :mod:`~mcdenoise.filters.kernels` -- memory-bounded k×k weighted sums: explicit per-pixel
   kernels (:func:`apply_kernels`) or weights from a callback (:func:`accumulate_weighted`).
@@ -6,36 +6,35 @@
   per-pixel bandwidths.
 * :mod:`~mcdenoise.filters.nlm` -- Rousselle 2012 variance-normalised non-local means
   (+ Rousselle 2013 feature weights).
-* :mod:`~mcdenoise.filters.prepare` -- buffers -> filter inputs, and ready-made denoisers with
-  tuned defaults (:func:`denoise_xbf`, :func:`denoise_nlm`).
+* :mod:`~mcdenoise.filters.box` -- window statistics (:func:`box_mean`, :func:`median3`).
+* :mod:`~mcdenoise.filters.albedo` -- albedo demodulation (:func:`demodulate`).
+* :mod:`~mcdenoise.filters.settings` -- the tuned parameters of the fixed filters
+  (:class:`XbfSettings`, :class:`NlmSettings`).
+
+Everything here takes and returns tensors; the preparation layer (``prep/``) makes them from
+buffers and the method adapters (``methods/``) run the whole pipelines.
 """
 
+from mcdenoise.filters.albedo import demodulate, demodulated_variance
+from mcdenoise.filters.box import box_mean, median3
 from mcdenoise.filters.cross_bilateral import CrossBilateral, cross_bilateral
 from mcdenoise.filters.kernels import Window, accumulate_weighted, apply_kernels
 from mcdenoise.filters.nlm import NonLocalMeans, non_local_means
-from mcdenoise.filters.prepare import (
-    FilterInputs,
-    NlmSettings,
-    XbfSettings,
-    denoise_nlm,
-    denoise_xbf,
-    estimate_variance,
-    prepare_inputs,
-)
+from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, XbfSettings
 
 __all__ = [
+    "GUIDE_FEATURES",
     "CrossBilateral",
-    "FilterInputs",
     "NlmSettings",
     "NonLocalMeans",
     "Window",
     "XbfSettings",
     "accumulate_weighted",
     "apply_kernels",
+    "box_mean",
     "cross_bilateral",
-    "denoise_nlm",
-    "denoise_xbf",
-    "estimate_variance",
+    "demodulate",
+    "demodulated_variance",
+    "median3",
     "non_local_means",
-    "prepare_inputs",
 ]

@@ -57,8 +57,7 @@ def check_image(
     if finite and not _all_finite(t):
         bad = int((~torch.isfinite(t)).sum())
         raise InputError(
-            f"{name} holds {bad} NaN/Inf value(s): sanitise the buffers first "
-            "(mcdenoise.io.buffers.sanitize)"
+            f"{name} holds {bad} NaN/Inf value(s): sanitise the buffers first (io.buffers.sanitize)"
         )
     return t
 

@@ -16,7 +16,7 @@ only counts the pixel pairs that are inside the image.
 
 Without a variance (``color_var=None``) the classic normalisation is used:
 ``d² = mean_{p,ch} (u_{i+p} - u_{j+p})² / h_i²`` -- pass ``h``; to get noise-aware weights from
-a colour-only image, estimate a variance (:mod:`mcdenoise.filters.prepare` does) and use the
+a colour-only image, estimate a variance (the preparation layer, ``prep/inputs.py``, does) and use the
 variance form.
 
 ``var_pair="min"`` replaces ``v_{j+p}`` by ``min(v_{i+p}, v_{j+p})`` in the denominator, which
@@ -105,7 +105,7 @@ def non_local_means(
             ``ε + v_i + v_j``; ``"min"`` uses ``ε + v_i + min(v_i, v_j)``, which does not let a
             much noisier neighbour (the anti-aliased edge of a visible light source) look
             similar to a dark, clean centre -- on renders with visible lights it is far more
-            robust (see :mod:`mcdenoise.filters.prepare`).
+            robust (the ``nlm`` method uses it by default).
         h: bandwidth of the classic distance (colour units), float or per-pixel tensor; only
             without ``color_var``.
         guide: ``(B, C_g, H, W)`` image whose patches are compared (default: ``color``), e.g. a

@@ -3,7 +3,7 @@
 Renderers write different buffers. A *source* is a fixed set of buffers; each has its own small
 encoder (two 3×3 convolutions) that maps its channels into one shared latent space, in front of
 a shared trunk. A model trained on one source adapts to a new one by training only a new encoder
-against the frozen trunk (``mcdenoise train --finetune-encoder``).
+against the frozen trunk (``train --finetune-encoder``).
 
 ==========  ===============================================================  ==================
 source      buffers                                                          who writes them
@@ -15,14 +15,15 @@ source      buffers                                                          who
 ``color``   colour only                                                      any beauty pass
 ==========  ===============================================================  ==================
 
-:func:`choose_source` takes the first of ``full``, ``basic``, ``color`` whose buffers the input
-has (among those the model was trained with).
+``choose_source`` (``prep/kpcn.py``) takes the first of ``full``, ``basic``, ``color``
+whose buffers the input has (among those the model was trained with).
 
-Preprocessing (:func:`prepare_tensors` once per image, :func:`source_channels` per crop/tile):
-the colour is sanitised and demodulated by the albedo (``irr = c / (albedo + 0.01)``, the
+Input channels (``prepare_tensors`` of ``prep/kpcn.py`` once per image, then
+:func:`source_channels` per crop/tile, inside the network's forward): the sanitised colour is
+demodulated by the albedo (``irr = c / (albedo + 0.01)``, :mod:`mcdenoise.filters.albedo`; the
 texture is multiplied back after filtering; without albedo ``irr = c``); the network sees
 ``log1p(irr)`` (HDR values compressed), ``log1p(sqrt(var(irr)))``, the albedo, the normal,
-depth / position divided by the scene extent (see :func:`~mcdenoise.filters.prepare.prepare_inputs`),
+depth / position divided by the scene extent (``prep/inputs.py``),
 ``log1p(sqrt(·))`` of the feature variances, and the gradient magnitudes
 ``|∂x f| + |∂y f|`` of the log colour and of every feature. Each channel is then normalised
 with per-source mean / standard deviation measured on the training data (stored in the model).
@@ -32,13 +33,12 @@ across scenes.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import torch
 from torch import Tensor, nn
 
-from mcdenoise.filters.prepare import GUIDE_FEATURES, prepare_inputs
-from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
+from mcdenoise.filters.albedo import demodulate, demodulated_variance
 from mcdenoise.models.features import FeatureStats
 
 #: Sources in order of preference, with the buffers each needs.
@@ -47,22 +47,8 @@ SOURCES: dict[str, tuple[str, ...]] = {
     "basic": ("color", "albedo", "normal"),
     "color": ("color",),
 }
-#: Albedo offset of the demodulation (``c / (albedo + ε)``).
-ALBEDO_EPS = 0.01
 #: Feature variances the full source uses when present (zero otherwise).
 FEATURE_VARS = ("albedo", "normal", "depth")
-#: Tensors of a prepared image and their channel counts.
-PREPARED = {
-    "color": 3,
-    "color_var": 1,
-    "albedo": 3,
-    "normal": 3,
-    "depth": 1,
-    "position": 3,
-    **{f"{g}_var": 1 for g in FEATURE_VARS},
-}
-#: Tensors that hold RGB colour (permuted together by the colour augmentation).
-COLOR_TENSORS = ("color", "albedo", "reference")
 
 
 def channel_names(source: str) -> list[str]:
@@ -83,44 +69,6 @@ def channel_names(source: str) -> list[str]:
     return names
 
 
-def choose_source(present: set[str] | Sequence[str], trained: Sequence[str]) -> str | None:
-    """The first source of :data:`SOURCES` among ``trained`` whose buffers are all present."""
-    have = set(present)
-    for name, needs in SOURCES.items():
-        if name in trained and have.issuperset(needs):
-            return name
-    return None
-
-
-def prepare_tensors(buffers: FeatureBuffers, source: str) -> dict[str, Tensor]:
-    """Sanitised, normalised tensors ``{name: (C, H, W)}`` of one image for ``source``.
-
-    Raises:
-        MissingFeatureError: a buffer the source needs is absent (or, for depth / position,
-        has no usable scene extent).
-    """
-    buffers.require(list(SOURCES[source]), needed_by=f"the kpcn '{source}' source")
-    guides = [g for g in GUIDE_FEATURES if g in SOURCES[source]]
-    inp = prepare_inputs(buffers, features=guides, prefilter=False)
-    missing = [g for g in guides if g not in inp.features]
-    if missing:
-        raise MissingFeatureError(
-            missing,
-            sorted(buffers.buffers),
-            source=buffers.source,
-            needed_by="kpcn (no scene extent)",
-        )
-    out = {"color": inp.color[0]}
-    if source == "full":
-        out["color_var"] = inp.color_var[0]
-        for g in FEATURE_VARS:
-            v = inp.feature_vars.get(g)
-            out[f"{g}_var"] = v[0].mean(0, keepdim=True) if v is not None else inp.color_var[0] * 0
-    for g in guides:
-        out[g] = inp.features[g][0]
-    return out
-
-
 def _grad(x: Tensor) -> Tensor:
     """``|∂x| + |∂y|`` summed over channels, ``(B, 1, H, W)`` (forward differences, 0 at the edge)."""
     gx = torch.zeros_like(x)
@@ -130,27 +78,18 @@ def _grad(x: Tensor) -> Tensor:
     return (gx.abs() + gy.abs()).sum(1, keepdim=True)
 
 
-def demodulate(t: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
-    """``(irradiance, factor)`` of prepared tensors ``(B, C, H, W)``: ``c / f`` and ``f``."""
-    if "albedo" in t:
-        factor = t["albedo"] + ALBEDO_EPS
-    else:
-        factor = torch.ones_like(t["color"])
-    return t["color"] / factor, factor
-
-
 def source_channels(source: str, t: Mapping[str, Tensor]) -> Tensor:
     """Raw (unnormalised) input channels ``(B, len(channel_names(source)), H, W)``.
 
     Args:
-        t: prepared tensors ``(B, C, H, W)`` (:func:`prepare_tensors`, batched), at least the
-            buffers of ``source``.
+        t: prepared tensors ``(B, C, H, W)`` (``prepare_tensors`` of ``prep/kpcn.py``,
+            batched), at least the buffers of ``source``.
     """
-    irr, factor = demodulate(t)
+    irr, factor = demodulate(t["color"], t.get("albedo"))
     log = torch.log1p(irr)
     parts = [log]
     if source == "full":
-        var = t["color_var"] / factor.square().mean(1, keepdim=True)
+        var = demodulated_variance(t["color_var"], factor)
         parts.append(torch.log1p(var.clamp_min(0).sqrt()))
     if source in ("full", "basic"):
         parts += [t["albedo"], t["normal"]]
@@ -207,17 +146,11 @@ def shared_layout(z: Tensor, source: str) -> Tensor:
 
 
 __all__ = [
-    "ALBEDO_EPS",
-    "COLOR_TENSORS",
     "FEATURE_VARS",
-    "PREPARED",
     "SOURCES",
     "Normalizer",
     "channel_names",
-    "choose_source",
-    "demodulate",
     "encoder",
-    "prepare_tensors",
     "shared_layout",
     "source_channels",
 ]

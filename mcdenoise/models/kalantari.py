@@ -1,7 +1,9 @@
 """Learned per-pixel filter parameters: the Kalantari, Bako, Sen 2015 MLP.
 
-A small per-pixel MLP (1×1 convolutions) maps the features of :mod:`mcdenoise.models.features`
-to the bandwidths of a classical filter, and the filter does the denoising:
+A small per-pixel MLP (1×1 convolutions) maps per-pixel features
+(``compute_features`` of ``prep/kalantari.py``, named and normalised as in
+:mod:`mcdenoise.models.features`) to the bandwidths of a classical filter, and the filter does
+the denoising:
 
 ``kind = "xbf"``
     the cross-bilateral filter of :mod:`mcdenoise.filters.cross_bilateral`; outputs: the
@@ -11,14 +13,17 @@ to the bandwidths of a classical filter, and the filter does the denoising:
     per guide feature.
 
 Parametrisation. Every bandwidth is the tuned fixed-filter default
-(:class:`~mcdenoise.filters.prepare.XbfSettings` / ``NlmSettings``, the exact value
-:func:`~mcdenoise.filters.prepare.denoise_xbf` would use) times ``exp(o)``, with the network's
+(:class:`~mcdenoise.filters.settings.XbfSettings` / ``NlmSettings``, the exact value the
+``cross-bilateral`` / ``nlm`` methods use) times ``exp(o)``, with the network's
 log-offset ``o = B · tanh(raw / B)`` bounded by ``B = 3`` (a factor 20 either way). The last
 layer starts at zero, so the **untrained model is exactly the fixed-parameter filter**;
 training can only move away from it where that lowers the loss, positivity is built in, and
 a multiplicative offset treats a bandwidth of 0.02 (depth) and 8 px (space) alike. The
-filter runs on the same prepared inputs as the fixed pipeline (:func:`prepare_inputs`,
-albedo demodulation), so the comparison with the fixed filter is like for like.
+filter runs on the same prepared inputs as the fixed pipeline
+(``prepare_item`` of ``prep/kalantari.py``: sanitised, normalised inputs and albedo
+demodulation), so the comparison with the fixed filter is like for like. The
+module takes prepared tensor batches only; :mod:`mcdenoise.methods.kalantari` runs it on a
+FeatureBuffers.
 
 Model file (``torch.save`` of a dict, read with ``weights_only=True``)::
 
@@ -27,7 +32,8 @@ Model file (``torch.save`` of a dict, read with ``weights_only=True``)::
 
 Loading checks the format version and that the features the code computes for the model's
 guide set are the ones stored (names and order); an input that lacks a guide the model was
-trained with is refused with a message naming it (:func:`check_inputs`).
+trained with is refused with a message naming it
+(``check_inputs`` of ``prep/kalantari.py``).
 """
 
 from __future__ import annotations
@@ -46,23 +52,15 @@ from mcdenoise import __version__
 from mcdenoise.errors import InputError
 from mcdenoise.filters.cross_bilateral import cross_bilateral
 from mcdenoise.filters.nlm import non_local_means
-from mcdenoise.filters.prepare import (
+from mcdenoise.filters.settings import (
     GUIDE_FEATURES,
-    FilterInputs,
     NlmSettings,
     XbfSettings,
-    _demodulate,
     feature_bandwidths,
-    prepare_inputs,
+    filter_radius,
 )
-from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.modelfile import load_weights, read_model_file, save_model
-from mcdenoise.models.features import (
-    FeatureStats,
-    check_feature_names,
-    compute_features,
-    feature_names,
-)
+from mcdenoise.models.features import FeatureStats, check_feature_names, feature_names
 
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kalantari/1"
@@ -179,14 +177,6 @@ class KalantariNet(nn.Module):
         return self.bound * torch.tanh(raw / self.bound)
 
 
-def filter_radius(s: XbfSettings | NlmSettings) -> int:
-    """Pixels of context one filtered pixel depends on (window, patches, feature gradients)."""
-    grad = 1 if s.feature_gradient else 0
-    if isinstance(s, XbfSettings):
-        return s.passes * (s.kernel_size // 2) + grad
-    return s.search_radius + s.patch_radius + grad
-
-
 class KalantariModel(nn.Module):
     """Features -> MLP -> per-pixel bandwidths -> classical filter.
 
@@ -208,27 +198,6 @@ class KalantariModel(nn.Module):
         """Pixels of context a filtered pixel depends on (the training crop margin)."""
         return filter_radius(self.settings)
 
-    # --- preparation (whole image) ------------------------------------------------------
-    def prepare(
-        self, buffers: FeatureBuffers, reference: Tensor | None = None
-    ) -> dict[str, Tensor]:
-        """The tensors :meth:`filter` needs for one image, ``{name: (C, H, W)}``.
-
-        Raises:
-            MissingFeatureError: the image lacks a guide the model was trained with.
-        """
-        check_inputs(self.card, buffers)
-        item = prepare_item(
-            buffers,
-            self.card.kind,
-            self.settings,
-            self.card.guides,
-            reference,
-            self.card.guide_vars,
-            regional=self.card.regional,
-        )
-        return item
-
     # --- forward -------------------------------------------------------------------------
     def offsets(self, features: Tensor) -> Tensor:
         """Log-offsets ``(B, O, H, W)`` from raw features ``(B, F, H, W)``."""
@@ -238,7 +207,8 @@ class KalantariModel(nn.Module):
         """Filtered, remodulated colour ``(B, 3, H, W)`` (linear HDR, >= 0) of a prepared batch.
 
         Args:
-            batch: :meth:`prepare` output stacked to ``(B, C, H, W)``.
+            batch: ``prep/kalantari.py``'s ``prepare_for_model`` output stacked to
+                ``(B, C, H, W)``.
             offsets: log-offsets to use instead of the network's (zeros: the fixed filter).
         """
         o = self.offsets(batch["features"]) if offsets is None else offsets
@@ -303,9 +273,9 @@ class KalantariModel(nn.Module):
         return self.filter(batch, offsets)
 
     @torch.no_grad()
-    def denoise(self, buffers: FeatureBuffers, *, chunk_rows: int = 256) -> Tensor:
-        """Denoise one image; returns ``(3, H, W)`` float32 linear HDR colour."""
-        item = self.prepare(buffers)
+    def denoise_item(self, item: Mapping[str, Tensor], *, chunk_rows: int = 256) -> Tensor:
+        """Denoise one prepared image ``{name: (C, H, W)}``; returns ``(3, H, W)`` float32
+        linear HDR colour (finite, >= 0). The MLP runs on ``chunk_rows`` rows at a time."""
         batch = {k: v[None] for k, v in item.items()}
         feats = batch["features"]
         rows = [
@@ -337,68 +307,6 @@ class KalantariModel(nn.Module):
         load_weights(model, state["state"], p)
         model.eval()
         return model
-
-
-def check_inputs(card: ModelCard, buffers: FeatureBuffers) -> None:
-    """Refuse buffers without a guide (or guide variance) the model was trained with."""
-    missing = [g for g in card.guides if g not in buffers]
-    missing += [f"{g}_var" for g in card.guide_vars if g in buffers and f"{g}_var" not in buffers]
-    if missing:
-        raise MissingFeatureError(
-            missing,
-            sorted(buffers.buffers),
-            source=buffers.source,
-            needed_by=f"this Kalantari {card.kind} model (trained with {', '.join(card.guides)};"
-            " use the fixed filters nlm or cross-bilateral for such inputs)",
-        )
-
-
-def prepare_item(
-    buffers: FeatureBuffers,
-    kind: str,
-    settings: XbfSettings | NlmSettings,
-    guides: Sequence[str],
-    reference: Tensor | None = None,
-    guide_vars: Sequence[str] | None = None,
-    *,
-    regional: bool = False,
-) -> dict[str, Tensor]:
-    """Filter inputs and raw features of one image, ``{name: (C, H, W)}``.
-
-    ``guide_vars``: use the variances of these guides only (``None``: every one present), so
-    an input with more buffers than a model was trained with is seen as the model expects.
-
-    Keys: ``color`` (sanitised noisy colour), ``irr``/``irr_var`` (what the filter averages and
-    its variance), ``factor`` (remodulation, ones without albedo), ``feat.<g>``/``fvar.<g>``
-    (guides as :func:`prepare_inputs` normalises them), ``features`` (raw features), and
-    ``reference`` when given.
-    """
-    inp: FilterInputs = prepare_inputs(
-        buffers, features=tuple(guides), prefilter=settings.prefilter
-    )
-    missing = [g for g in guides if g not in inp.features]
-    if missing:  # e.g. position present but no usable scene extent
-        raise MissingFeatureError(
-            missing, sorted(buffers.buffers), source=buffers.source, needed_by="the Kalantari model"
-        )
-    if guide_vars is not None:
-        inp.feature_vars = {g: v for g, v in inp.feature_vars.items() if g in guide_vars}
-    irr, var, factor = _demodulate(inp, settings.demodulate, settings.albedo_eps)
-    feats, _ = compute_features(inp, irr, var, buffers.spp, regional=regional)
-    out = {
-        "color": inp.color[0],
-        "irr": irr[0],
-        "irr_var": var[0],
-        "factor": (factor if factor is not None else torch.ones_like(irr))[0],
-        "features": feats[0],
-    }
-    for g in guides:
-        out[f"feat.{g}"] = inp.features[g][0]
-        if g in inp.feature_vars:
-            out[f"fvar.{g}"] = inp.feature_vars[g][0]
-    if reference is not None:
-        out["reference"] = reference
-    return out
 
 
 def new_model(
@@ -433,9 +341,7 @@ __all__ = [
     "KalantariModel",
     "KalantariNet",
     "ModelCard",
-    "check_inputs",
-    "filter_radius",
     "new_model",
     "output_names",
-    "prepare_item",
+    "settings_class",
 ]

@@ -4,6 +4,7 @@
 Data flow of one image (``(B, C, H, W)`` tensors, linear HDR colour)::
 
     buffers --prepare_tensors--> colour, variance, albedo, normal, depth, position ...
+                                                                          (prep/kpcn.py)
       --source_channels--> log colour, log std, features, gradients      (encoders.py)
       --Normalizer + the source's encoder--> latent (channels[0] wide, full resolution)
       --U-Net trunk--> decoder features at full, 1/2, 1/4 ... resolution
@@ -25,7 +26,8 @@ are the widths at full, 1/2, 1/4 and 1/8 resolution (two 3×3 convolutions per l
 two per level up except one at full resolution); a KPCN-sized 9-layer 100-channel network
 would cost ~110 s per megapixel on two CPU cores.
 
-Inference (:meth:`KpcnModel.denoise`) runs on tiles with a halo of :attr:`KpcnModel.halo`
+Inference (:meth:`KpcnModel.denoise_tensors`; :func:`mcdenoise.methods.kpcn.denoise_kpcn` from a
+FeatureBuffers) runs on tiles with a halo of :attr:`KpcnModel.halo`
 pixels (more than the receptive field, tile origins aligned to the U-Net's pooling grid), so
 tiled and untiled results agree to float rounding; within a tile the k² kernels exist for a
 strip of rows at a time. Peak memory is bounded by the tile size, not the frame size.
@@ -50,16 +52,13 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from mcdenoise.errors import InputError
-from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
+from mcdenoise.filters.albedo import demodulate
 from mcdenoise.modelfile import load_weights, read_model_file, save_model
 from mcdenoise.models.encoders import (
     SOURCES,
     Normalizer,
     channel_names,
-    choose_source,
-    demodulate,
     encoder,
-    prepare_tensors,
     shared_layout,
     source_channels,
 )
@@ -260,7 +259,7 @@ class KpcnModel(nn.Module):
 
     def run(self, t: Mapping[str, Tensor], source: str, strip: int | None = None) -> Tensor:
         """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`)."""
-        irr, factor = demodulate(t)
+        irr, factor = demodulate(t["color"], t.get("albedo"))
         feats = self.features(t, source)
         if self.card.albedo_kernels and "albedo" in t:
             factor = apply_head(factor, feats[0], self.albedo_head, self.card.kernel, strip=strip)
@@ -295,45 +294,6 @@ class KpcnModel(nn.Module):
         ]
 
     # --- inference ---------------------------------------------------------------------
-    def source_for(self, buffers: FeatureBuffers) -> str:
-        """The source this model uses for ``buffers`` (or a MissingFeatureError)."""
-        src = choose_source(set(buffers.buffers), self.card.sources)
-        if src is None:
-            needs = min((SOURCES[s] for s in self.card.sources), key=len)
-            raise MissingFeatureError(
-                [b for b in needs if b not in buffers],
-                sorted(buffers.buffers),
-                source=buffers.source,
-                needed_by=f"this kpcn model (sources {', '.join(self.card.sources)})",
-            )
-        return src
-
-    @torch.no_grad()
-    def denoise(
-        self,
-        buffers: FeatureBuffers,
-        *,
-        source: str | None = None,
-        tile: int = TILE,
-        strip: int = STRIP,
-    ) -> Tensor:
-        """Denoise one image; returns ``(3, H, W)`` float32 linear HDR colour (finite, >= 0).
-
-        Args:
-            source: force an input source (default: :meth:`source_for`).
-            tile: tile edge in pixels (rounded up to :attr:`multiple`); the result does not
-                depend on it (to float rounding).
-            strip: rows of kernels materialised at once.
-        """
-        src = source or self.source_for(buffers)
-        if src not in self.card.sources:
-            raise InputError(
-                f"this kpcn model has no '{src}' source ({', '.join(self.card.sources)})"
-            )
-        device = next(self.parameters()).device
-        t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, src).items()}
-        return self.denoise_tensors(t, src, tile=tile, strip=strip)[0]
-
     @torch.no_grad()
     def denoise_tensors(
         self, t: Mapping[str, Tensor], source: str, *, tile: int = TILE, strip: int = STRIP

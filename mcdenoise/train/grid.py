@@ -3,7 +3,7 @@
 "What does learning buy" is only meaningful against the *best* fixed parameters, found on the
 same training data the learned model saw. :func:`grid_search` runs the cross-bilateral or
 NLM filter with every combination of a compact grid over its main bandwidths on prepared
-training images (:func:`mcdenoise.models.kalantari.prepare_item`, the same preparation as the
+training images (:func:`mcdenoise.prep.kalantari.prepare_item`, the same preparation as the
 learned models) and picks, **per spp level**, the combination with the lowest geometric-mean
 relMSE. (Per level, because the learned model knows the spp; one setting for all levels
 would be a weaker baseline.)
@@ -20,7 +20,7 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
-from mcdenoise.filters.prepare import GUIDE_FEATURES
+from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import new_model
 from mcdenoise.stats import geometric_mean
@@ -89,7 +89,7 @@ def grid_search(
     Args:
         kind: ``"xbf"``, ``"nlm"`` or ``"xbf2"`` (two-pass cross-bilateral grid).
         items: prepared whole images (from :func:`~mcdenoise.train.dataset.load_items` with
-            :func:`~mcdenoise.models.kalantari.prepare_item`), with ``reference``.
+            :func:`~mcdenoise.prep.kalantari.prepare_item`), with ``reference``.
         grid: setting name -> values (default :data:`GRIDS`).
     """
     grid = {k: list(v) for k, v in (grid or GRIDS[kind]).items()}

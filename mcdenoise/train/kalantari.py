@@ -22,17 +22,11 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError
-from mcdenoise.filters.prepare import GUIDE_FEATURES
-from mcdenoise.losses import crop_log_relmse
-from mcdenoise.losses import relmse as masked_relmse
+from mcdenoise.filters.settings import GUIDE_FEATURES, filter_radius
+from mcdenoise.losses import crop_log_relmse, relmse
 from mcdenoise.models.features import FeatureStats, feature_names
-from mcdenoise.models.kalantari import (
-    KalantariModel,
-    filter_radius,
-    new_model,
-    prepare_item,
-    settings_class,
-)
+from mcdenoise.models.kalantari import KalantariModel, new_model, settings_class
+from mcdenoise.prep.kalantari import prepare_item
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
@@ -91,7 +85,7 @@ class KalantariTask:
         out = self.forward_module(batch)
         if self.loss_name == "log-relmse":
             return crop_log_relmse(out, batch["reference"], batch["mask"])
-        return masked_relmse(out, batch["reference"], batch["mask"])
+        return relmse(out, batch["reference"], batch["mask"])
 
     def _errors(self, fixed: bool) -> list[float]:
         errs = []

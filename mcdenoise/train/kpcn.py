@@ -1,9 +1,10 @@
 """Training the kernel-predicting CNN (``kpcn``), and fine-tuning a new source encoder.
 
 Data: a folder made by ``mcdenoise render`` (every spp level of every image; the split is by
-image). Each image is prepared once for the ``full`` source (:func:`prepare_tensors`); crops
-are drawn ∝ the noisy error (:class:`~mcdenoise.train.dataset.PatchSampler`), augmented
-(flips, 90° rotations, RGB permutations) and each crop is shown to the network as one of the
+image). Each image is prepared once for the ``full`` source
+(:func:`~mcdenoise.prep.kpcn.prepare_tensors`); crops are drawn ∝ the noisy error
+(:class:`~mcdenoise.train.dataset.PatchSampler`), augmented (flips, 90° rotations, RGB
+permutations) and each crop is shown to the network as one of the
 trained sources (round robin from a random offset, so every encoder is used every step when
 ``batch >= len(sources)``): a ``basic`` crop simply lacks the variance, depth, position and
 feature variances. The loss (default SMAPE, :mod:`mcdenoise.losses`) is computed on the crop
@@ -36,16 +37,10 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.losses import compute_loss, crop_log_relmse
-from mcdenoise.models.encoders import (
-    COLOR_TENSORS,
-    SOURCES,
-    channel_names,
-    encoder,
-    prepare_tensors,
-    source_channels,
-)
+from mcdenoise.models.encoders import SOURCES, channel_names, encoder, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
+from mcdenoise.prep.kpcn import COLOR_TENSORS, prepare_tensors
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (

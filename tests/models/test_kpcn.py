@@ -11,21 +11,16 @@ import torch
 
 import mcdenoise.models.multiscale as multiscale
 from mcdenoise.errors import InputError
+from mcdenoise.filters.albedo import ALBEDO_EPS
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.losses import smape
-from mcdenoise.models.encoders import (
-    ALBEDO_EPS,
-    SOURCES,
-    channel_names,
-    choose_source,
-    prepare_tensors,
-    shared_layout,
-    source_channels,
-)
+from mcdenoise.methods.kpcn import denoise_kpcn
+from mcdenoise.modelfile import CheckpointError
+from mcdenoise.models.encoders import SOURCES, channel_names, shared_layout, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
-from mcdenoise.train.checkpoint import CheckpointError
+from mcdenoise.prep.kpcn import prepare_tensors
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 ALL = list(SOURCES)  # full, basic, color
@@ -81,26 +76,6 @@ def _batch(b: FeatureBuffers, sources: list[int]) -> dict[str, torch.Tensor]:
 
 
 @pytest.mark.parametrize(
-    ("present", "trained", "want"),
-    [
-        (FULL_BUFFERS, ALL, "full"),
-        (FULL_BUFFERS | {"albedo_var", "diffuse"}, ALL, "full"),
-        ({"color", "albedo", "normal"}, ALL, "basic"),
-        (FULL_BUFFERS - {"color_var"}, ALL, "basic"),  # no variance: not the full source
-        ({"color", "albedo"}, ALL, "color"),
-        ({"color"}, ALL, "color"),
-        (FULL_BUFFERS, ["basic", "color"], "basic"),  # only among the trained sources
-        (FULL_BUFFERS, ["color"], "color"),
-        ({"color", "albedo"}, ["full", "basic"], None),
-        ({"albedo", "normal"}, ALL, None),
-    ],
-)
-def test_choose_source(present, trained, want) -> None:
-    assert choose_source(present, trained) == want
-    assert choose_source(sorted(present), trained) == want  # any sequence of names
-
-
-@pytest.mark.parametrize(
     ("sources", "keep", "named"),
     [
         (["full", "basic"], ["color"], ["albedo", "normal"]),
@@ -111,7 +86,7 @@ def test_choose_source(present, trained, want) -> None:
 def test_missing_buffers_raise_one_line_naming_them(cornell, stats, sources, keep, named) -> None:
     m = _tiny(stats, sources, channels=(8, 8), kernel=3, scales=1)
     with pytest.raises(MissingFeatureError) as info:
-        m.denoise(cornell.crop(0, 0, 8, 8).subset(keep))
+        denoise_kpcn(m, cornell.crop(0, 0, 8, 8).subset(keep))
     msg = str(info.value)
     assert len(msg.splitlines()) == 1, msg
     assert "cornell_spp4.exr" in msg
@@ -121,10 +96,12 @@ def test_missing_buffers_raise_one_line_naming_them(cornell, stats, sources, kee
 
 def test_forcing_a_source_the_input_cannot_feed(cornell, model, stats) -> None:
     with pytest.raises(MissingFeatureError, match="needs color_var, depth, position"):
-        model.denoise(cornell.crop(0, 0, 8, 8).subset(["color", "albedo", "normal"]), source="full")
+        denoise_kpcn(
+            model, cornell.crop(0, 0, 8, 8).subset(["color", "albedo", "normal"]), source="full"
+        )
     basic_only = _tiny(stats, ["basic"], channels=(8, 8), kernel=3, scales=1)
     with pytest.raises(InputError, match="no 'full' source"):
-        basic_only.denoise(cornell.crop(0, 0, 8, 8), source="full")
+        denoise_kpcn(basic_only, cornell.crop(0, 0, 8, 8), source="full")
 
 
 # --- tiling, strips, determinism -----------------------------------------------------------
@@ -143,12 +120,12 @@ def test_tiled_equals_untiled_on_an_odd_size(cornell, stats, arch) -> None:
     m = _tiny(stats, **arch)
     assert m.halo % m.multiple == 0
     crop = cornell.crop(20, 10, 75, 100)  # 100x75: a multiple of neither tile nor pooling
-    whole = m.denoise(crop, tile=1024, strip=1024)
+    whole = denoise_kpcn(m, crop, tile=1024, strip=1024)
     assert whole.shape == (3, 75, 100)
     # the network does something: the result is not the noisy input
     assert float((whole - crop["color"]).abs().mean()) > 1e-3
     for tile in (32, 48):
-        tiled = m.denoise(crop, tile=tile, strip=7)
+        tiled = denoise_kpcn(m, crop, tile=tile, strip=7)
         # 1e-5 is the promise; measured ~3e-8 (rounding). 1e-6 also catches a halo too small:
         # the 3-level model (halo 48) is off by 9e-6 with a 16-px halo, by 6e-3 with 8 px
         torch.testing.assert_close(tiled, whole, atol=1e-6, rtol=0, msg=f"tile {tile}")
@@ -176,11 +153,11 @@ def test_albedo_kernels_start_near_a_delta_and_can_remove_albedo_noise(cornell, 
     assert w[12].item() == pytest.approx(0.69, abs=0.01)
     # every kernel averages a constant irradiance to itself, so without albedo kernels the
     # output is the noisy albedo; uniform albedo kernels (a 5x5 box) remove most of its noise
-    noisy = plain.denoise(b, source="full")
+    noisy = denoise_kpcn(plain, b, source="full")
     torch.testing.assert_close(noisy, b["albedo"] + ALBEDO_EPS, atol=1e-5, rtol=1e-5)
     with torch.no_grad():
         m.albedo_head.bias.zero_()
-    box = m.denoise(b, source="full")
+    box = denoise_kpcn(m, b, source="full")
     inner = (slice(None), slice(4, -4), slice(4, -4))
     assert box[inner].std().item() < 0.35 * noisy[inner].std().item()
     torch.testing.assert_close(box[inner].mean(), noisy[inner].mean(), atol=5e-3, rtol=0)
@@ -194,7 +171,7 @@ def test_albedo_kernels_survive_save_and_load(cornell, stats, tmp_path) -> None:
     again = KpcnModel.load(tmp_path / "m.pt")
     assert again.card.albedo_kernels
     crop = cornell.crop(3, 4, 40, 36)
-    assert torch.equal(again.denoise(crop), m.denoise(crop))
+    assert torch.equal(denoise_kpcn(again, crop), denoise_kpcn(m, crop))
     # model files written before the option have no field: no albedo kernels
     d = m.card.to_dict()
     del d["albedo_kernels"]
@@ -203,7 +180,7 @@ def test_albedo_kernels_survive_save_and_load(cornell, stats, tmp_path) -> None:
 
 def test_same_input_three_times_gives_identical_bytes(cornell, model) -> None:
     crop = cornell.crop(5, 7, 40, 36)
-    outs = [model.denoise(crop, tile=32, strip=9) for _ in range(3)]
+    outs = [denoise_kpcn(model, crop, tile=32, strip=9) for _ in range(3)]
     assert outs[0].numpy().tobytes() == outs[1].numpy().tobytes() == outs[2].numpy().tobytes()
 
 
@@ -221,7 +198,7 @@ def test_training_forward_routes_each_crop_to_its_source(cornell, model) -> None
             else:
                 # a basic/colour crop is exactly what inference sees for that source: e.g. a
                 # colour-only crop is not demodulated by the albedo the batch holds
-                want = model.denoise(cornell.crop(8 * i, 10 * i, 16, 16), source=name)
+                want = denoise_kpcn(model, cornell.crop(8 * i, 10 * i, 16, 16), source=name)
             torch.testing.assert_close(out[i], want, atol=1e-6, rtol=1e-6, msg=name)
         # the same crop seen through different sources gives different results
         same = _batch(cornell, [0])
@@ -284,7 +261,7 @@ def test_hard_inputs_give_finite_non_negative_output(cornell, model, case) -> No
     make, (h, w) = HARD[case]
     b = make(_copy(cornell.crop(50, 50, h, w)))
     for src in ALL:
-        out = model.denoise(b, source=src, tile=32, strip=4)
+        out = denoise_kpcn(model, b, source=src, tile=32, strip=4)
         assert out.shape == (3, h, w) and out.dtype == torch.float32
         assert bool(torch.isfinite(out).all()), (case, src)
         assert bool((out >= 0).all()), (case, src)
@@ -299,7 +276,7 @@ def test_a_constant_image_stays_constant(cornell, model) -> None:
     b["color"].fill_(0.3)
     b["albedo"].fill_(0.5)
     for src in ALL:
-        out = model.denoise(b, source=src, tile=32, strip=5)
+        out = denoise_kpcn(model, b, source=src, tile=32, strip=5)
         torch.testing.assert_close(out, torch.full_like(out, 0.3), atol=1e-6, rtol=1e-5)
 
 
@@ -313,7 +290,9 @@ def test_save_load_gives_identical_output(cornell, model, tmp_path) -> None:
     assert again.card.to_dict() == model.card.to_dict()
     crop = cornell.crop(10, 10, 24, 24)
     for src in ALL:
-        assert torch.equal(again.denoise(crop, source=src), model.denoise(crop, source=src))
+        assert torch.equal(
+            denoise_kpcn(again, crop, source=src), denoise_kpcn(model, crop, source=src)
+        )
     # a run folder loads its model.pt
     (tmp_path / "run").mkdir()
     model.save(tmp_path / "run" / "model.pt")
@@ -378,7 +357,7 @@ def test_bf16_autocast_keeps_kernels_and_output_float32(cornell, model, monkeypa
     try:
         with torch.autocast("cpu", dtype=torch.bfloat16):
             out = model(batch)
-            tiled = model.denoise(cornell.crop(0, 0, 20, 18), tile=8, strip=3)
+            tiled = denoise_kpcn(model, cornell.crop(0, 0, 20, 18), tile=8, strip=3)
     finally:
         hook.remove()
     assert conv_dtypes and set(conv_dtypes) == {torch.bfloat16}  # autocast was in effect
@@ -411,7 +390,7 @@ def test_shared_encoder_runs_for_every_source(cornell, stats) -> None:
     crop = cornell.crop(40, 40, 24, 20)
     outs = {}
     for src in ALL:
-        outs[src] = m.denoise(crop, source=src, tile=16, strip=6)
+        outs[src] = denoise_kpcn(m, crop, source=src, tile=16, strip=6)
         assert outs[src].shape == (3, 24, 20) and bool(torch.isfinite(outs[src]).all())
         assert bool((outs[src] >= 0).all())
     # the missing channels are zero-filled, not ignored: the sources see different inputs

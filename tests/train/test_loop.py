@@ -13,6 +13,7 @@ from tiny_settings import TINY_KALANTARI
 from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers
 from mcdenoise.models.kalantari import KalantariModel
+from mcdenoise.prep.kalantari import prepare_for_model
 from mcdenoise.train.checkpoint import CheckpointError, RunFolder
 from mcdenoise.train.config import load_config
 from mcdenoise.train.kalantari import train_kalantari
@@ -92,7 +93,7 @@ def test_regional_features_are_trained_and_required(tiny_dataset: Path, tmp_path
     m = KalantariModel.load(tmp_path / "run")
     assert m.card.regional and m.card.features.names[-1] == "region.position.grad"
     b = load_buffers(next(tiny_dataset.glob("*.exr")), part="spp4")
-    assert m.prepare(b)["features"].shape[0] == len(m.card.features.names)
+    assert prepare_for_model(m.card, b)["features"].shape[0] == len(m.card.features.names)
     with pytest.raises(InputError, match="kalantari models only"):
         cfg(tiny_dataset, regional="true", model="kpcn")
 

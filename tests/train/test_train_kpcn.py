@@ -20,8 +20,9 @@ import mcdenoise.train.kpcn as train_kpcn_module
 from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import l1
-from mcdenoise.models.encoders import COLOR_TENSORS
+from mcdenoise.methods.kpcn import denoise_kpcn
 from mcdenoise.models.kpcn import KpcnModel
+from mcdenoise.prep.kpcn import COLOR_TENSORS
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import load_config
 from mcdenoise.train.dataset import augment
@@ -127,7 +128,7 @@ def test_train_kpcn_writes_a_loadable_run(base_run: Path, tiny_dataset: Path) ->
     assert training["val_images"] and training["train_images"]
     assert not set(training["val_images"]) & set(training["train_images"])  # split by image
     assert training["validation"]["val_loss"] == pytest.approx(min(m["val_loss"] for m in metrics))
-    out = model.denoise(load_buffers(tiny_dataset / "cornell.exr", part="spp4"))
+    out = denoise_kpcn(model, load_buffers(tiny_dataset / "cornell.exr", part="spp4"))
     assert out.shape == (3, 40, 40) and bool(torch.isfinite(out).all())
 
 
@@ -222,8 +223,10 @@ def test_finetune_encoder_trains_only_that_encoder(
     assert "val_color_geomean" in metrics[-1] and "val_full_geomean" not in metrics[-1]
     # the tuned model serves colour-only inputs, and still the others as the base did
     b = load_buffers(tiny_dataset / "materials.exr", part="spp16")
-    assert bool(torch.isfinite(tuned.denoise(b.subset(["color"]))).all())
-    assert torch.equal(tuned.denoise(b, source="basic"), base.denoise(b, source="basic"))
+    assert bool(torch.isfinite(denoise_kpcn(tuned, b.subset(["color"]))).all())
+    assert torch.equal(
+        denoise_kpcn(tuned, b, source="basic"), denoise_kpcn(base, b, source="basic")
+    )
 
 
 def test_continued_training_starts_from_every_base_weight(
@@ -427,7 +430,7 @@ def test_cli_train_kpcn_then_denoise_with_the_run(tiny_dataset: Path, tmp_path: 
     assert str(run) in b.attributes["mcdenoise:params"]
     assert b["color"].shape == (3, 128, 128)
     assert bool(torch.isfinite(b["color"]).all()) and bool((b["color"] >= 0).all())
-    want = KpcnModel.load(run).denoise(load_buffers(src), tile=1024)
+    want = denoise_kpcn(KpcnModel.load(run), load_buffers(src), tile=1024)
     torch.testing.assert_close(b["color"], want)
 
 

@@ -1,6 +1,7 @@
-"""Intel Open Image Denoise through ``pyoidn`` (optional extra ``mcdenoise[oidn]``).
+"""The ``oidn`` method: Intel Open Image Denoise through ``pyoidn`` (extra ``mcdenoise[oidn]``).
 
-OIDN is the industry's reference denoiser, so every experiment can be compared with it. We call
+OIDN is the industry's reference denoiser, so every experiment can be compared with it; it is
+a peer, never the default (priority 0). We call
 its ``RT`` filter in HDR mode with the auxiliary buffers OIDN documents: albedo in [0, 1] and
 world- or view-space normals in [-1, 1] (both optional; OIDN prefilters them unless
 ``clean_aux`` is set). OIDN needs the colour to be non-negative and finite, so the caller passes
@@ -10,11 +11,15 @@ sanitised buffers.
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import torch
 
 from mcdenoise.errors import InputError
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.method import Method
 
 
 def unavailable_reason() -> str | None:
@@ -62,3 +67,28 @@ def oidn_denoise(
     n = _hwc(normal.clamp(-1, 1)) if (normal is not None and albedo is not None) else None
     out = pyoidn.denoise(c, a, n, hdr=True, clean_aux=clean_aux, quality=quality)
     return torch.from_numpy(np.asarray(out, dtype=np.float32)).permute(2, 0, 1).to(color.device)
+
+
+def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
+    return oidn_denoise(
+        b["color"],
+        b.get("albedo"),
+        b.get("normal"),
+        quality=str(params["quality"]),
+        clean_aux=bool(params["clean_aux"]),
+    )
+
+
+METHOD = Method(
+    name="oidn",
+    summary="Intel Open Image Denoise (pyoidn), HDR, with albedo and normal when present",
+    requires=("color",),
+    uses=("albedo", "normal"),
+    defaults={"quality": "high", "clean_aux": False},
+    run=_run,
+    priority=0,
+    unavailable=unavailable_reason,
+    devices=("cpu",),
+)
+
+__all__ = ["METHOD", "oidn_denoise", "unavailable_reason"]

@@ -1,1 +1,0 @@
-"""Peer denoisers mcdenoise compares against (OIDN)."""

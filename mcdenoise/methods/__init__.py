@@ -1,0 +1,58 @@
+"""The built-in denoising methods: one adapter module per method, listed by :func:`builtin_methods`.
+
+=================  ==========================================================  ========
+name               what                                                        priority
+=================  ==========================================================  ========
+kalantari-xbf      two-pass cross-bilateral filter whose per-pixel bandwidths      30
+                   a small MLP predicts from local features (Kalantari 2015);
+                   ``model`` = a run folder or model file, default the shipped
+                   weights (:mod:`~mcdenoise.methods.kalantari`)
+kalantari-nlm      the same learning for NLM (per-pixel k and feature k_f)         25
+kpcn               kernel-predicting U-Net (Bako 2017) with source-aware           22
+                   encoders and 3-scale kernels (Vogels 2018); ``model`` = a run
+                   folder or model file, default the shipped weights
+                   (:mod:`~mcdenoise.methods.kpcn`; -1 without shipped weights)
+nlm                variance-normalised non-local means with feature weights    20
+                   (Rousselle 2012/2013), albedo-demodulated
+                   (:mod:`~mcdenoise.methods.nlm`)
+cross-bilateral    cross-bilateral filter with Kalantari 2015 terms, fixed     10
+                   default bandwidths (alias ``xbf``;
+                   :mod:`~mcdenoise.methods.cross_bilateral`)
+oidn               Intel Open Image Denoise (pyoidn), colour + albedo +        0
+                   normal; a peer to compare with, never the default
+                   (:mod:`~mcdenoise.methods.oidn`)
+=================  ==========================================================  ========
+
+Each module builds its :class:`~mcdenoise.method.Method` (buffers -> :mod:`mcdenoise.prep` ->
+filter or model -> output) without registering it; :mod:`mcdenoise.registry` adds
+:func:`builtin_methods` to its table on first use, so the listing never depends on which
+module happened to be imported first.
+
+The default method (no ``--method``) is the available one with the highest priority whose
+required buffers the input has. The learned filters rank first, kalantari-xbf above
+kalantari-nlm; kalantari-xbf serves inputs without albedo with its shipped no-albedo variant.
+Inputs without depth or position go to kpcn when they have albedo and normal, else to nlm.
+OIDN is deliberately never the default: mcdenoise's own methods are what it reports on, OIDN
+is the baseline they are compared with. The measurements behind this order are in
+``docs/results/methods-notes.md``.
+"""
+
+from __future__ import annotations
+
+from mcdenoise.method import Method
+from mcdenoise.methods import cross_bilateral, kalantari, kpcn, nlm, oidn
+
+
+def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
+    """Every built-in method with its aliases, in a fixed order."""
+    return [
+        (nlm.METHOD, ()),
+        (cross_bilateral.METHOD, cross_bilateral.ALIASES),
+        (kalantari.XBF, ()),
+        (kalantari.NLM, ()),
+        (kpcn.METHOD, ()),
+        (oidn.METHOD, ()),
+    ]
+
+
+__all__ = ["builtin_methods"]

@@ -1,0 +1,81 @@
+"""The ``kpcn`` method: buffers -> the source's prepared tensors -> kernel-predicting CNN.
+
+:func:`denoise_kpcn` picks the input source the model knows and the buffers allow
+(:func:`~mcdenoise.prep.kpcn.source_for`), prepares the image once
+(:func:`~mcdenoise.prep.kpcn.prepare_tensors`) and runs the network tile by tile
+(:meth:`~mcdenoise.models.kpcn.KpcnModel.denoise_tensors`). The ``model`` parameter is a run
+folder or model file, default the shipped weights; the method ranks below the learned filters
+and above ``nlm`` when those weights are installed, else last.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from mcdenoise.errors import InputError
+from mcdenoise.filters.settings import GUIDE_FEATURES
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.method import Method
+from mcdenoise.methods.cross_bilateral import GUIDE_VARS
+from mcdenoise.models.kpcn import STRIP, TILE, KpcnModel
+from mcdenoise.models.weights import SHIPPED, load_kpcn, shipped_model_path
+from mcdenoise.prep.kpcn import prepare_tensors, source_for
+
+
+@torch.no_grad()
+def denoise_kpcn(
+    model: KpcnModel,
+    buffers: FeatureBuffers,
+    *,
+    source: str | None = None,
+    tile: int = TILE,
+    strip: int = STRIP,
+) -> Tensor:
+    """Denoise one image; returns ``(3, H, W)`` float32 linear HDR colour (finite, >= 0).
+
+    Args:
+        source: force an input source (default: the first the model knows whose buffers
+            are present, :func:`~mcdenoise.prep.kpcn.source_for`).
+        tile: tile edge in pixels (rounded up to :attr:`KpcnModel.multiple`); the result does
+            not depend on it (to float rounding).
+        strip: rows of kernels materialised at once.
+    """
+    src = source or source_for(buffers, model.card.sources)
+    if src not in model.card.sources:
+        raise InputError(f"this kpcn model has no '{src}' source ({', '.join(model.card.sources)})")
+    device = next(model.parameters()).device
+    t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, src).items()}
+    return model.denoise_tensors(t, src, tile=tile, strip=strip)[0]
+
+
+def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
+    name = str(params["model"])
+    if name in ("", SHIPPED):
+        path = shipped_model_path("kpcn")
+        if not path.is_file():
+            raise InputError("kpcn: no shipped weights in this install; pass -p model=RUN_FOLDER")
+    else:
+        path = name
+    model = load_kpcn(path).to(device)
+    source = str(params["source"])
+    return denoise_kpcn(
+        model, b, source=None if source == "auto" else source, tile=int(params["tile"])
+    )
+
+
+METHOD = Method(
+    name="kpcn",
+    summary="kernel-predicting CNN, source-aware encoder, 3-scale kernels (Bako 2017, "
+    "Vogels 2018); -p model=RUN",
+    requires=("color", "albedo", "normal"),
+    uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
+    defaults={"model": SHIPPED, "source": "auto", "tile": 1024},
+    run=_run,
+    priority=22 if shipped_model_path("kpcn").is_file() else -1,
+)
+
+__all__ = ["METHOD", "denoise_kpcn"]

@@ -1,0 +1,75 @@
+"""The ``nlm`` method: buffers -> prepared inputs -> variance-normalised non-local means.
+
+The same pipeline as :mod:`mcdenoise.methods.cross_bilateral` (prepare, demodulate by the
+albedo, filter, remodulate, clamp at 0) with Rousselle 2012's NLM and, where guide features
+are present, Rousselle 2013's feature weights. Its parameters are
+:class:`~mcdenoise.filters.settings.NlmSettings`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from mcdenoise.filters.nlm import non_local_means
+from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, with_overrides
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.method import Method, dataclass_defaults
+from mcdenoise.methods.cross_bilateral import GUIDE_VARS, remodulate
+from mcdenoise.prep.inputs import demodulate_inputs, guide_args, prepare_inputs
+
+
+def denoise_nlm(buffers: FeatureBuffers, **overrides: object) -> Tensor:
+    """Denoise with variance-normalised NLM; returns the ``(3, H, W)`` float32 colour.
+
+    Keyword overrides replace fields of :class:`NlmSettings`. Without a variance buffer the
+    variance is estimated from the colour (:func:`~mcdenoise.prep.inputs.estimate_variance`);
+    guide features, when present, add Rousselle 2013 feature weights (``features=()`` turns
+    them off).
+
+    Example:
+        >>> fb = FeatureBuffers({"color": torch.full((3, 8, 8), 0.5)})
+        >>> denoise_nlm(fb, search_radius=2).shape
+        torch.Size([3, 8, 8])
+    """
+    s = with_overrides(NlmSettings(), overrides)
+    inp = prepare_inputs(buffers, features=s.features, prefilter=s.prefilter)
+    irr, var, factor = demodulate_inputs(inp, enabled=s.demodulate, eps=s.albedo_eps)
+    sig, fvars, floors = guide_args(inp, s)
+    with torch.no_grad():
+        out = non_local_means(
+            irr,
+            search_radius=s.search_radius,
+            patch_radius=s.patch_radius,
+            k=s.k,
+            alpha=s.alpha,
+            color_var=var,
+            var_pair=s.var_pair,  # type: ignore[arg-type]
+            features=inp.features or None,
+            feature_k=sig,
+            feature_vars=fvars,
+            feature_floor=floors,
+            feature_gradient=s.feature_gradient,
+            combine=s.combine,  # type: ignore[arg-type]
+        )
+    return remodulate(out, factor)
+
+
+def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
+    return denoise_nlm(b, **params)
+
+
+METHOD = Method(
+    name="nlm",
+    summary="non-local means, variance-normalised patches + feature weights (Rousselle 2012/13)",
+    requires=("color",),
+    uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
+    defaults=dataclass_defaults(NlmSettings),
+    run=_run,
+    priority=20,
+)
+
+__all__ = ["METHOD", "denoise_nlm"]
