@@ -105,12 +105,13 @@ def resolve_device(device: str | torch.device = "auto") -> torch.device:
 
 @dataclass
 class DenoiseResult:
-    """What :func:`denoise` returns: the image and how it was made."""
+    """One denoised frame (what :func:`denoise` returns, :func:`denoise_sequence` yields):
+    the image and how it was made."""
 
     image: torch.Tensor  # (3, H, W) float32, linear HDR, finite, >= 0
     method: str
     params: dict[str, Any]
-    seconds: float  # wall time of the method itself (no file I/O)
+    seconds: float  # wall time of the method on this frame (no file I/O, no sanitising)
     device: str
     repaired: dict[str, int] = field(default_factory=dict)  # NaN/Inf/negatives fixed per buffer
 
