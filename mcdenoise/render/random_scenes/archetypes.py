@@ -293,7 +293,7 @@ def _outdoor(b: Build) -> None:
     rng, d = b.rng, b.dist
     out, lights = d.outdoor, d.lights
     azimuth = d.camera.azimuth.draw(rng)
-    _open_subjects(b, d.subjects.size, rng.uniform(1.2, 2.5), azimuth)
+    _open_subjects(b, d.subjects.size, d.outdoor.spread.draw(rng), azimuth)
     b.camera = orbit_camera(rng, d, b.subjects, azimuth, d.camera.elevation)
     _ground(b)
     has_sun = rng.random() < out.sun_prob
@@ -404,7 +404,7 @@ def _sh_scene(b: Build) -> None:
     rng, d = b.rng, b.dist
     sh = d.sh
     azimuth = d.camera.azimuth.draw(rng)
-    _open_subjects(b, d.subjects.size, rng.uniform(1.0, 2.2), azimuth)
+    _open_subjects(b, d.subjects.size, d.sh.spread.draw(rng), azimuth)
     b.camera = orbit_camera(rng, d, b.subjects, azimuth, d.camera.sh_elevation)
     g = sh.plane_half.draw(rng)
     plane = (
@@ -438,7 +438,8 @@ def _ao(b: Build) -> None:
         return
     b.variant = "ground"
     azimuth = d.camera.azimuth.draw(rng)
-    _open_subjects(b, d.subjects.size, rng.uniform(1.2, 2.5), azimuth, material=lambda: dict(white))
+    spread = d.outdoor.spread.draw(rng)
+    _open_subjects(b, d.subjects.size, spread, azimuth, material=lambda: dict(white))
     b.camera = orbit_camera(rng, d, b.subjects, azimuth, d.camera.elevation)
     _ground(b, white=True)
 

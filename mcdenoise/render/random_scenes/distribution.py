@@ -122,6 +122,7 @@ class Interior:
 class Outdoor:
     ground_rect_prob: float = 0.6  # else a disk
     ground_half: U = U(15, 40)
+    spread: U = U(1.2, 2.5)  # radius of the disk the subjects stand in (also AO grounds)
     studio_prob: float = 0.25  # environment: the studio envmap file
     overcast_gain: float = 1.6  # environment brightness without a sun
     sun_prob: float = 0.7
@@ -160,9 +161,20 @@ class Tabletop:
 
 @dataclass(frozen=True)
 class SH:
+    """SH-lit scenes and their random environments (:func:`random_sh_coefficients`)."""
+
     plane_rect_prob: float = 0.5  # else a disk
     plane_half: U = U(3, 8)
+    spread: U = U(1.0, 2.2)  # radius of the disk the subjects stand in
     mean_radiance: U = U(0.3, 0.9)
+    top_value: U = U(0.4, 1.0)  # colour value of the sky's zenith
+    bottom_value: U = U(0.05, 0.4)  # and of its nadir
+    gradient_exponent: U = U(0.5, 2.0)  # of max(y, 0) towards the zenith
+    ambient: float = 0.05  # radiance added everywhere
+    lobes: Count = Count(1, 3)
+    lobe_sharpness: U = U(3, 25)  # exponent k of exp(k (cos θ - 1))
+    lobe_strength: U = U(1, 6)
+    lobe_below: float = 0.3  # half of the lobes: y of the direction mirrored and scaled by this
     sun_prob: float = 0.5
     sun_min_height: float = 0.15  # y of the sun's direction (sine of its elevation)
     sun_irradiance: U = U(0.5, 2)
@@ -407,8 +419,8 @@ interior ({d.archetypes[interior]:.0%})
     {d.interior.bulbs} bulbs ({d.interior.bulb_prob:.0%}). Always ``indirect``.
 
 outdoor ({d.archetypes[outdoor]:.0%})
-    Ground: rectangle ({d.outdoor.ground_rect_prob:.0%}) or disk of half size
-    {d.outdoor.ground_half}; one environment: procedural sky envmap {d.lights.sky_prob:.0%} (scale
+    Subjects within a disk of radius {d.outdoor.spread}. Ground: rectangle
+    ({d.outdoor.ground_rect_prob:.0%}) or disk of half size {d.outdoor.ground_half}; one environment: procedural sky envmap {d.lights.sky_prob:.0%} (scale
     {d.lights.sky_scale}), studio envmap file {d.outdoor.studio_prob:.0%} (scale
     {d.lights.studio_scale}), constant {d.outdoor_constant_prob:.0%} ({d.lights.constant_radiance}),
     × {d.outdoor.overcast_gain:g} when there is no sun; sun {d.outdoor.sun_prob:.0%} (elevation
@@ -428,15 +440,21 @@ tabletop ({d.archetypes[tabletop]:.0%})
     {d.tabletop.bulbs} bulbs ({d.tabletop.bulb_prob:.0%}).
 
 sh ({d.archetypes[sh]:.0%})
-    Subjects on a support plane (rectangle {d.sh.plane_rect_prob:.0%}, else a disk; half
-    {d.sh.plane_half}) lit by an SH environment of the AR-lighting paper's order
-    (:func:`random_sh_coefficients`, mean radiance {d.sh.mean_radiance}), plus, in
-    {d.sh.sun_prob:.0%}, a main directional light (a sun along the SH sky's brightest direction
-    above {d.sh.sun_min_elevation:.1f}° elevation, irradiance {d.sh.sun_irradiance}).
+    Subjects within a disk of radius {d.sh.spread} on a support plane (rectangle
+    {d.sh.plane_rect_prob:.0%}, else a disk; half {d.sh.plane_half}) lit by an SH environment of the AR-lighting paper's order
+    (:func:`random_sh_coefficients`, mean radiance {d.sh.mean_radiance}): a gradient sky
+    (colours of value {d.sh.top_value} at the zenith and {d.sh.bottom_value} at the nadir,
+    exponent {d.sh.gradient_exponent}, plus {d.sh.ambient:g} everywhere) and {d.sh.lobes}
+    coloured lobes ``exp(k (cos θ − 1))`` of sharpness ``k`` {d.sh.lobe_sharpness} and strength
+    {d.sh.lobe_strength}, mostly from above (half of them mirrored below the horizon, at
+    {d.sh.lobe_below:g} of their height), projected on SH and lifted to be non-negative
+    everywhere. Plus, in {d.sh.sun_prob:.0%}, a main directional light (a sun along the SH sky's
+    brightest direction above {d.sh.sun_min_elevation:.1f}° elevation, irradiance
+    {d.sh.sun_irradiance}).
 
 ao ({d.archetypes[ao]:.0%})
     Effects ``["ao"]``, ``ao_radius`` {d.ao.radius}, white diffuse geometry (reflectance
-    {d.ao.reflectance:g}): {d.ao.ground_prob:.0%} subjects on an open ground, {d.ao.room_prob:.0%} in
+    {d.ao.reflectance:g}): {d.ao.ground_prob:.0%} subjects on an open ground (as outdoors), {d.ao.room_prob:.0%} in
     a closed room (as interiors); no lights; always a pinhole.
 
 **Lights**: bulbs (fireflies) are emissive spheres of radius {d.lights.bulb_radius} and radiance
@@ -509,7 +527,13 @@ exercise the integrator that cuts those paths; ``dof`` iff thin lens. ``render.m
 """
 
 #: Formulas of :data:`TEMPLATE` whose digits are not parameters.
-FORMULAS: tuple[str, ...] = ("E·d²/A", "E·d²", "``1 − ρ``", "``1 / (1 − ρ)``")
+FORMULAS: tuple[str, ...] = (
+    "E·d²/A",
+    "E·d²",
+    "``1 − ρ``",
+    "``1 / (1 − ρ)``",
+    "``exp(k (cos θ − 1))``",
+)
 
 
 def _reflow(text: str, width: int = 95) -> str:

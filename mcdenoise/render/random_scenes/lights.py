@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.render.random_scenes.assets import envmap_file
-from mcdenoise.render.random_scenes.distribution import DISTRIBUTION, Distribution, Lights, U
+from mcdenoise.render.random_scenes.distribution import DISTRIBUTION, Distribution, Lights
 from mcdenoise.render.random_scenes.placement import Solid, outside
 from mcdenoise.render.random_scenes.sampling import (
     LUMINANCE,
@@ -176,24 +176,25 @@ def random_sh_coefficients(
     distribution: Distribution = DISTRIBUTION,
 ) -> np.ndarray:
     """Order-5 SH radiance ``(36, 3)`` (module :mod:`mcdenoise.render.sh` convention) of a
-    random environment: a gradient sky (brighter above) plus 1–3 coloured lobes of sharpness
-    ``U(3, 25)``, projected on SH; then the constant term is raised until the radiance is
+    random environment drawn from ``distribution.sh``: a gradient sky (brighter above) plus
+    coloured lobes, projected on SH; then the constant term is raised until the radiance is
     ≥ 0 at every texel of the lat-long :func:`~mcdenoise.render.sh.sh_envmap_dict` bakes (so
     nothing is clamped), and everything is scaled to ``mean_radiance`` (luminance averaged
-    over the sphere). Colours and light tints follow ``distribution``."""
-    m, lights = distribution.materials, distribution.lights
+    over the sphere)."""
+    m, lights, sh = distribution.materials, distribution.lights, distribution.sh
     dirs, weights, basis = sh_grid(64, 33)
     up = dirs[:, 1:2]
-    top = np.array(colour(rng, m, U(0.4, 1.0)))
-    bottom = np.array(colour(rng, m, U(0.05, 0.4)))
-    radiance = top * np.clip(up, 0, 1) ** rng.uniform(0.5, 2.0) + bottom * np.clip(-up, 0, 1)
-    radiance = radiance + 0.05
-    for _ in range(int(rng.integers(1, 4))):
+    top = np.array(colour(rng, m, sh.top_value))
+    bottom = np.array(colour(rng, m, sh.bottom_value))
+    gradient = np.clip(up, 0, 1) ** sh.gradient_exponent.draw(rng)
+    radiance = top * gradient + bottom * np.clip(-up, 0, 1)
+    radiance = radiance + sh.ambient
+    for _ in range(sh.lobes.draw(rng)):
         mu = rng.normal(size=3)
-        mu[1] = abs(mu[1]) * rng.choice([1.0, -0.3])  # mostly from above
+        mu[1] = abs(mu[1]) * rng.choice([1.0, -sh.lobe_below])  # mostly from above
         mu /= np.linalg.norm(mu)
-        lobe = np.exp(rng.uniform(3, 25) * (dirs @ mu - 1))[:, None]
-        radiance = radiance + rng.uniform(1, 6) * lobe * tint(rng, lights)
+        lobe = np.exp(sh.lobe_sharpness.draw(rng) * (dirs @ mu - 1))[:, None]
+        radiance = radiance + sh.lobe_strength.draw(rng) * lobe * tint(rng, lights)
     coeffs = basis.T @ (radiance * weights[:, None])  # (36, 3): ∫ L Y_i dω by quadrature
     y00 = 0.5 / math.sqrt(math.pi)
     lowest = (sh_grid(128, 65)[2] @ coeffs).min(axis=0)  # the texels sh_envmap_dict bakes
