@@ -1,0 +1,212 @@
+"""The import directions of docs/architecture.md, read from the source with ``ast``.
+
+Every ``import`` and ``from ... import`` in ``mcdenoise/`` counts, at module level and inside
+functions alike (a deferred import is still a dependency). The rules:
+
+* ``io`` imports no algorithm (filters, prep, models, methods, train, eval, experiments, render,
+  losses, registry, denoise);
+* ``filters`` (tensor operators) import nothing of io, prep, models, methods, train, eval,
+  experiments, render;
+* ``models`` (pure ``nn.Module``\\ s) import nothing of io, prep, methods, train, eval,
+  experiments, render, registry, denoise;
+* ``modelfile`` sits below models and train;
+* no ``mcdenoise`` module imports ``mcdenoise_cli``;
+* no import cycle between subpackages (``mcdenoise.io``, ``mcdenoise.filters``, ...; top-level
+  modules such as ``mcdenoise.losses`` count as units of their own).
+"""
+
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = REPO / "mcdenoise"
+
+FORBIDDEN: dict[str, set[str]] = {
+    "io": {
+        "filters",
+        "prep",
+        "models",
+        "methods",
+        "train",
+        "eval",
+        "experiments",
+        "render",
+        "losses",
+        "registry",
+        "denoise",
+    },
+    "filters": {
+        "io",
+        "prep",
+        "models",
+        "methods",
+        "train",
+        "eval",
+        "experiments",
+        "render",
+        "registry",
+        "denoise",
+    },
+    "models": {
+        "io",
+        "prep",
+        "methods",
+        "train",
+        "eval",
+        "experiments",
+        "render",
+        "registry",
+        "denoise",
+    },
+    "modelfile": {
+        "models",
+        "train",
+        "prep",
+        "methods",
+        "eval",
+        "experiments",
+        "render",
+        "registry",
+        "denoise",
+        "filters",
+    },
+    "losses": {"io", "prep", "models", "methods", "train", "eval", "experiments", "render"},
+    "errors": {
+        "io",
+        "filters",
+        "prep",
+        "models",
+        "methods",
+        "train",
+        "eval",
+        "experiments",
+        "render",
+        "losses",
+        "registry",
+        "denoise",
+        "modelfile",
+    },
+}
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """Absolute names of the modules ``path`` imports (relative imports resolved)."""
+    mod = _module_name(path)
+    package = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            out.add(target)
+            # `from mcdenoise import methods` imports the submodule mcdenoise.methods
+            out.update(f"{target}.{a.name}" for a in node.names)
+    return out
+
+
+def _unit(module: str) -> str | None:
+    """The subpackage (or top-level module) of ``mcdenoise`` a module belongs to."""
+    parts = module.split(".")
+    if parts[0] != "mcdenoise" or len(parts) < 2:
+        return None
+    return parts[1]
+
+
+def _existing_units() -> set[str]:
+    units = {p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    units |= {p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__"}
+    return units
+
+
+def _graph() -> dict[str, dict[str, set[str]]]:
+    """unit -> imported unit -> the modules of ``unit`` that import it."""
+    units = _existing_units()
+    graph: dict[str, dict[str, set[str]]] = defaultdict(lambda: defaultdict(set))
+    for path in sorted(PACKAGE.rglob("*.py")):
+        src = _module_name(path)
+        src_unit = _unit(src)
+        for target in _imports(path):
+            unit = _unit(target)
+            if unit in units and unit != src_unit and src_unit is not None:
+                graph[src_unit][unit].add(src)
+    return graph
+
+
+def test_the_parser_sees_imports():
+    """The checker itself: a known import is found (so an empty graph cannot pass silently)."""
+    graph = _graph()
+    assert "io" in graph["denoise"] or "io" in graph.get("methods", {})
+    assert _imports(PACKAGE / "io" / "__init__.py")
+
+
+@pytest.mark.parametrize("unit", sorted(FORBIDDEN))
+def test_import_directions(unit):
+    graph = _graph()
+    bad = {dep: sorted(mods) for dep, mods in graph.get(unit, {}).items() if dep in FORBIDDEN[unit]}
+    assert not bad, f"mcdenoise.{unit} must not import {sorted(bad)}: {bad}"
+
+
+def test_library_never_imports_the_cli():
+    offenders = [
+        _module_name(p)
+        for p in PACKAGE.rglob("*.py")
+        if any(t.split(".")[0] == "mcdenoise_cli" for t in _imports(p))
+    ]
+    assert not offenders
+
+
+def test_no_cycles_between_subpackages():
+    graph = _graph()
+    edges = {u: set(deps) for u, deps in graph.items()}
+    cycles: list[list[str]] = []
+
+    def visit(node: str, stack: list[str], on_stack: set[str], done: set[str]) -> None:
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(edges.get(node, ())):
+            if nxt in on_stack:
+                cycles.append([*stack[stack.index(nxt) :], nxt])
+            elif nxt not in done:
+                visit(nxt, stack, on_stack, done)
+        stack.pop()
+        on_stack.discard(node)
+        done.add(node)
+
+    done: set[str] = set()
+    for unit in sorted(edges):
+        if unit not in done:
+            visit(unit, [], set(), done)
+    detail = [
+        " -> ".join(c)
+        + "  ("
+        + "; ".join(f"{a}->{b}: {sorted(graph[a][b])[0]}" for a, b in zip(c, c[1:]))
+        + ")"
+        for c in cycles
+    ]
+    assert not cycles, "import cycles between subpackages:\n" + "\n".join(detail)
+
+
+def test_no_file_over_900_lines():
+    long = {
+        str(p.relative_to(REPO)): n
+        for p in PACKAGE.rglob("*.py")
+        if (n := len(p.read_text(encoding="utf-8").splitlines())) > 900
+    }
+    assert not long
