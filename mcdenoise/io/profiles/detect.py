@@ -80,9 +80,8 @@ def detect_profile(channel_names: Sequence[str], attributes: Mapping[str, Any]) 
     """Guess the renderer profile from channel names and header attributes.
 
     The profiles' own :meth:`~mcdenoise.io.profiles.base.Profile.detect` rules are tried in
-    :data:`DETECTION_ORDER` (mcdenoise, cycles, pbrt, tungsten, mitsuba), first match wins;
-    otherwise a file with canonical names (plain ``R,G,B`` ...) is read as the mcdenoise
-    layout.
+    :data:`DETECTION_ORDER`, first match wins; otherwise a file with canonical names (plain
+    ``R,G,B`` ...) is read as the mcdenoise layout.
 
     Raises:
         ProfileError: nothing recognisable (the message lists the channels).
