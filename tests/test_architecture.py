@@ -18,6 +18,7 @@ functions alike (a deferred import is still a dependency). The rules:
 from __future__ import annotations
 
 import ast
+import itertools
 from collections import defaultdict
 from pathlib import Path
 
@@ -196,7 +197,7 @@ def test_no_cycles_between_subpackages():
     detail = [
         " -> ".join(c)
         + "  ("
-        + "; ".join(f"{a}->{b}: {sorted(graph[a][b])[0]}" for a, b in zip(c, c[1:]))
+        + "; ".join(f"{a}->{b}: {sorted(graph[a][b])[0]}" for a, b in itertools.pairwise(c))
         + ")"
         for c in cycles
     ]
