@@ -19,11 +19,10 @@ log-offset ``o = B · tanh(raw / B)`` bounded by ``B = 3`` (a factor 20 either w
 layer starts at zero, so the **untrained model is exactly the fixed-parameter filter**;
 training can only move away from it where that lowers the loss, positivity is built in, and
 a multiplicative offset treats a bandwidth of 0.02 (depth) and 8 px (space) alike. The
-filter runs on the same prepared inputs as the fixed pipeline
-(``prepare_item`` of ``prep/kalantari.py``: sanitised, normalised inputs and albedo
-demodulation), so the comparison with the fixed filter is like for like. The
-module takes prepared tensor batches only; :mod:`mcdenoise.methods.kalantari` runs it on a
-FeatureBuffers.
+filter runs on the same prepared inputs as the fixed pipeline (``prepare_item`` of
+``prep/kalantari.py``: sanitised, normalised inputs and albedo demodulation), so the
+comparison with the fixed filter is like for like. The module takes prepared tensor batches
+only; :mod:`mcdenoise.methods.kalantari` runs it on a FeatureBuffers.
 
 Model file (``torch.save`` of a dict, read with ``weights_only=True``)::
 
