@@ -54,15 +54,7 @@ def _ensure_builtins() -> None:
         return
     _builtins["state"] = "loading"
     try:
-        try:
-            from mcdenoise.methods import builtin_methods
-        except ImportError:
-            # Until mcdenoise.methods is the package with builtin_methods(), the old module
-            # registers the built-ins when it is imported (done by the line above).
-            import mcdenoise.methods  # noqa: F401
-
-            def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
-                return []
+        from mcdenoise.methods import builtin_methods
 
         for method, aliases in builtin_methods():
             _REGISTRY.setdefault(method.name, method)
