@@ -51,7 +51,7 @@ class FilterInputs:
         color_var: ``(1, 1, H, W)`` robust variance of the mean of ``color`` (channel mean):
             from the buffers, or estimated from the colour when :attr:`estimated_variance`.
         features: name -> normalised (and, where a variance exists, prefiltered) guide feature,
-            in :data:`GUIDE_FEATURES` order, only those present.
+            in :data:`~mcdenoise.filters.settings.GUIDE_FEATURES` order, only those present.
         feature_vars: name -> normalised variance of the mean of the raw feature, when present.
         albedo: albedo ``(1, 3, H, W)`` for demodulation (prefiltered when it has a variance),
             or ``None``.
@@ -170,7 +170,8 @@ def prepare_inputs(
 
     Args:
         buffers: the image's buffers; only ``color`` is required.
-        features: which guide features to use if present (subset of :data:`GUIDE_FEATURES`).
+        features: which guide features to use if present (subset of
+            :data:`~mcdenoise.filters.settings.GUIDE_FEATURES`).
         prefilter: prefilter features that have a variance buffer (see the module docstring).
         dtype, device: of the returned tensors.
 
@@ -251,7 +252,6 @@ def guide_args(
 
 
 __all__ = [
-    "GUIDE_FEATURES",
     "PREFILTER",
     "FilterInputs",
     "demodulate_inputs",
