@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from make_golden import METHODS, pixel_index, sample_files
 
 GOLDEN = Path(__file__).with_name("golden_outputs.npz")
