@@ -14,7 +14,15 @@ mse      mean((x − r)²)                              linear HDR RGB
 psnr     10 · log10(1 / MSE), in dB                  sRGB, clamped to [0, 1] (no exposure)
 ssim     SSIM, data_range = 1, mean over channels    sRGB, clamped to [0, 1] (no exposure)
 flip     mean HDR-FLIP error (``flip_evaluator``)    linear HDR RGB (negatives clamped to 0)
+bias     mean(x) / mean(r) − 1 over all channels     linear HDR RGB
+bias_r   the same on R only (``bias_g``, ``bias_b``)  linear HDR RGB
 =======  ==========================================  ======================================
+
+The mean bias is signed (−0.03: the output is 3 % darker than the reference, energy lost;
+0 is best): it is computed as ``(mean(x) − mean(r)) / |mean(r)|`` with the means over pixels
+(and channels for ``bias``), so no ε shifts it. A reference whose mean is exactly 0 gives 0
+when the output's mean is 0 too, else the metric is unavailable (:class:`MetricUnavailable`:
+no relative change of a zero mean exists). Asking for ``bias`` also computes its channels.
 
 The ε of relMSE and SMAPE are the training losses' (:data:`mcdenoise.losses.RELMSE_EPS`,
 :data:`mcdenoise.losses.SMAPE_EPS`), imported from there. :func:`relative_squared_error` is the
@@ -32,6 +40,7 @@ Edge cases, by policy:
   *failed*, counts its bad pixels and computes nothing;
 * output and reference of different sizes: :class:`~mcdenoise.errors.InputError` naming both
   (never broadcasting);
+* a black reference: see the mean bias above;
 * FLIP needs the optional ``flip_evaluator`` package and a reference that is not black; when
   it cannot be computed, :class:`MetricUnavailable` carries the reason.
 """
@@ -258,6 +267,34 @@ def _flip(x: np.ndarray, r: np.ndarray) -> float:
     return value
 
 
+def _relative_change(mean_x: float, mean_r: float, what: str) -> float:
+    """``(mean_x − mean_r) / |mean_r|``; 0 for two zero means; unavailable for a zero
+    reference mean only; NaN/Inf means give NaN/Inf (no error)."""
+    if mean_r == 0.0:
+        if mean_x == 0.0:
+            return 0.0
+        raise MetricUnavailable(f"the reference's mean{what} is 0: a relative bias is undefined")
+    with np.errstate(**_QUIET):
+        return float((mean_x - mean_r) / abs(mean_r))
+
+
+def _bias(x: np.ndarray, r: np.ndarray) -> float:
+    with np.errstate(**_QUIET):
+        return _relative_change(float(np.mean(x)), float(np.mean(r)), "")
+
+
+def _bias_channel(channel: int) -> Callable[[np.ndarray, np.ndarray], float]:
+    name = "RGB"[channel]
+
+    def fn(x: np.ndarray, r: np.ndarray) -> float:
+        with np.errstate(**_QUIET):
+            return _relative_change(
+                float(np.mean(x[channel])), float(np.mean(r[channel])), f" in {name}"
+            )
+
+    return fn
+
+
 # --- public functions -------------------------------------------------------------------------
 
 
@@ -329,6 +366,35 @@ def flip(output: ArrayLike, reference: ArrayLike) -> float:
     return _flip(*_pair(output, reference))
 
 
+def mean_bias(output: ArrayLike, reference: ArrayLike) -> float:
+    """Mean bias ``mean(x) / mean(r) − 1`` over all pixels and channels (signed; 0 is best).
+
+    Computed as ``(mean(x) − mean(r)) / |mean(r)|`` in float64 on ``(3, H, W)`` linear HDR RGB:
+    −0.03 means the output holds 3 % less energy than the reference (darker). NaN/Inf in an
+    input give NaN/Inf.
+
+    Raises:
+        MetricUnavailable: the reference's mean is 0 and the output's is not (two zero means
+            give 0).
+
+    >>> round(mean_bias(np.full((3, 2, 2), 0.97), np.ones((3, 2, 2))), 12)
+    -0.03
+    """
+    return _bias(*_pair(output, reference))
+
+
+def channel_bias(output: ArrayLike, reference: ArrayLike) -> tuple[float, float, float]:
+    """Mean bias of R, G and B separately (see :func:`mean_bias`); raises like it when one
+    channel's reference mean is 0.
+
+    >>> x = np.ones((3, 1, 2)); x[0] = 1.1
+    >>> [round(v, 12) for v in channel_bias(x, np.ones((3, 1, 2)))]
+    [0.1, 0.0, 0.0]
+    """
+    x, r = _pair(output, reference)
+    return _bias_channel(0)(x, r), _bias_channel(1)(x, r), _bias_channel(2)(x, r)
+
+
 # --- registry ---------------------------------------------------------------------------------
 
 
@@ -344,6 +410,10 @@ class Metric:
     epsilon: float | None = None
     higher_is_better: bool = False
     optional: bool = False
+    #: signed, best at 0: the best value is the one of smallest magnitude
+    signed: bool = False
+    #: the summary metric this one details (e.g. ``bias_r`` of ``bias``), shown under it
+    part_of: str | None = None
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready description (name, label, definition, ε, colour space, direction)."""
@@ -353,7 +423,16 @@ class Metric:
             "epsilon": self.epsilon,
             "space": self.space,
             "higher_is_better": self.higher_is_better,
+            "best": "closest to 0"
+            if self.signed
+            else ("highest" if self.higher_is_better else "lowest"),
         }
+
+    def better(self, a: float, b: float) -> bool:
+        """True when value ``a`` is strictly better than ``b`` for this metric."""
+        if self.signed:
+            return abs(a) < abs(b)
+        return a > b if self.higher_is_better else a < b
 
 
 #: Registered metrics, in report column order.
@@ -403,12 +482,48 @@ METRICS: dict[str, Metric] = {
             "exposure range from the reference)",
             optional=True,
         ),
+        Metric(
+            "bias",
+            "mean bias",
+            _bias,
+            LINEAR,
+            "mean(x) / mean(r) − 1, means over pixels and channels (signed: −0.03 = 3 % darker "
+            "than the reference; 0 when both means are 0, unavailable when only the "
+            "reference's is)",
+            signed=True,
+        ),
+        *(
+            Metric(
+                f"bias_{c.lower()}",
+                f"bias {c}",
+                _bias_channel(i),
+                LINEAR,
+                f"mean bias of the {c} channel: mean(x_{c}) / mean(r_{c}) − 1",
+                signed=True,
+                part_of="bias",
+            )
+            for i, c in enumerate("RGB")
+        ),
     )
+}
+
+#: Summary metric -> the metrics that detail it (``bias`` -> its channels).
+PARTS: dict[str, tuple[str, ...]] = {
+    name: tuple(m.name for m in METRICS.values() if m.part_of == name)
+    for name in METRICS
+    if any(m.part_of == name for m in METRICS.values())
 }
 
 
 def resolve_metrics(names: Sequence[str] | None) -> list[str]:
-    """Validate metric names (case-insensitive); ``None`` means every registered metric."""
+    """Validate metric names (case-insensitive); ``None`` means every registered metric.
+
+    A summary metric brings the metrics that detail it (``bias`` its channels ``bias_r``,
+    ``bias_g``, ``bias_b``), right after it.
+
+    >>> resolve_metrics(["relmse", "bias"])
+    ['relmse', 'bias', 'bias_r', 'bias_g', 'bias_b']
+    """
     if names is None:
         return list(METRICS)
     out: list[str] = []
@@ -416,8 +531,9 @@ def resolve_metrics(names: Sequence[str] | None) -> list[str]:
         key = str(n).strip().lower()
         if key not in METRICS:
             raise InputError(f"unknown metric {n!r}; known: {', '.join(METRICS)}")
-        if key not in out:
-            out.append(key)
+        for k in (key, *PARTS.get(key, ())):
+            if k not in out:
+                out.append(k)
     if not out:
         raise InputError("no metric requested")
     return out

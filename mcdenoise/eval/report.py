@@ -27,7 +27,7 @@ from string import Template
 import numpy as np
 
 from mcdenoise.errors import McdenoiseError
-from mcdenoise.eval.metrics import METRICS, flip_status, relmse_map
+from mcdenoise.eval.metrics import METRICS, PARTS, flip_status, relmse_map
 from mcdenoise.eval.results import ROLE_NOISY, EvalRecord, EvalResult, ScenePreview, encode_float
 from mcdenoise.eval.tonemap import colorbar, display, false_color, to_uint8
 from mcdenoise.io.atomic import atomic_path, write_text_atomic
@@ -49,7 +49,9 @@ _OWN_IMAGE = re.compile(r"^\d{2}_[A-Za-z0-9._-]+\.png$")
 HOW_TO_READ = (
     "Each scene compares denoised outputs with a high-sample-count reference. Lower relMSE, "
     "SMAPE, MSE and FLIP are better; higher PSNR and SSIM are better; the best value of each "
-    "column is bold. The grey \u201cnoisy\u201d row is the input before denoising, and "
+    "column is bold. Mean bias is the output's mean over the reference's mean \u2212 1 "
+    "(\u22123 % = 3 % darker: energy lost; best is closest to 0), with R, G and B below it. "
+    "The grey \u201cnoisy\u201d row is the input before denoising, and "
     "\u201crelMSE \u00f7 noisy\u201d below 1 means the method reduced the error (0.1 = ten "
     "times lower). Rows in red failed: the output has NaN/Inf pixels, so no metric is given. "
     "Under each image, its per-pixel relMSE map: dark = small error, bright = large error "
@@ -204,28 +206,49 @@ def _fmt(metric: str, value: float | None) -> str:
         return f"{value:.2f}"
     if metric in ("ssim", "flip"):
         return f"{value:.4f}"
+    if metric in METRICS and METRICS[metric].signed:
+        return percent(value)
     if value != 0 and (abs(value) < 1e-3 or abs(value) >= 1e5):
         return f"{value:.3e}"
     return f"{value:.4g}"
 
 
+def percent(value: float, digits: int = 2) -> str:
+    """A signed fraction as a percentage: ``-0.0392`` -> ``"\u22123.92 %"``."""
+    if math.isnan(value):
+        return "NaN"
+    if math.isinf(value):
+        return "\u221e" if value > 0 else "\u2212\u221e"
+    text = f"{100.0 * value:+.{digits}f} %"
+    return text.replace("-", "\u2212")
+
+
 def _best(
-    records: list[EvalRecord], get: Callable[[EvalRecord], float | None], higher: bool
+    records: list[EvalRecord], get: Callable[[EvalRecord], float | None], better: str
 ) -> float | None:
+    """The best value of a column: ``better`` is "higher", "lower" or "zero" (closest to 0)."""
     vals = [v for r in records if not r.failed and (v := get(r)) is not None and not math.isnan(v)]
     if not vals:
         return None
-    return max(vals) if higher else min(vals)
+    if better == "zero":
+        return min(vals, key=abs)
+    return max(vals) if better == "higher" else min(vals)
+
+
+def _direction(metric: str) -> str:
+    m = METRICS[metric]
+    return "zero" if m.signed else ("higher" if m.higher_is_better else "lower")
 
 
 def _table(result: EvalResult, scene: str, shown_metrics: list[str]) -> str:
     records = result.scene_records(scene)
-    cols: list[tuple[str, str, Callable[[EvalRecord], float | None], bool]] = [
-        (m, METRICS[m].label, (lambda r, m=m: r.metrics.get(m)), METRICS[m].higher_is_better)
+    parts = {m: [p for p in PARTS.get(m, ()) if p in result.metrics] for m in shown_metrics}
+    cols: list[tuple[str, str, Callable[[EvalRecord], float | None], str]] = [
+        (m, METRICS[m].label, (lambda r, m=m: r.metrics.get(m)), _direction(m))
         for m in shown_metrics
     ]
-    cols.append(("seconds", "seconds", lambda r: r.seconds, False))
-    cols.append(("ratio", "relMSE \u00f7 noisy", lambda r: r.relmse_ratio, False))
+    cols.append(("seconds", "seconds", lambda r: r.seconds, "lower"))
+    cols.append(("ratio", "relMSE \u00f7 noisy", lambda r: r.relmse_ratio, "lower"))
     best = {key: _best(records, get, hi) for key, _, get, hi in cols}
     head = "".join(f"<th>{_esc(label)}</th>" for _, label, _, _ in cols)
     rows = []
@@ -257,12 +280,25 @@ def _table(result: EvalResult, scene: str, shown_metrics: list[str]) -> str:
                 and not rec.failed
             ):
                 text = f'<b class="best">{text}</b>'
+            text += _parts_line(rec, parts.get(key, []))
             cells.append(f'<td class="num">{text}</td>')
         rows.append(f'<tr class="{cls}">{"".join(cells)}</tr>')
     return (
         '<table class="results"><thead><tr><th>method / file</th><th>input spp</th>'
         f"{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
     )
+
+
+def _parts_line(rec: EvalRecord, parts: list[str]) -> str:
+    """The detail metrics of a summary cell (``R \u22121.2 % G ...``) as a second line."""
+    if not parts:
+        return ""
+    items = []
+    for p in parts:
+        v = rec.metrics.get(p)
+        label = METRICS[p].label.split()[-1]
+        items.append(f"{label} {'n/a' if v is None else _fmt(p, v)}")
+    return f'<br><span class="small">{_esc(" ".join(items))}</span>'
 
 
 def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
@@ -357,7 +393,7 @@ def _header(result: EvalResult) -> str:
     metric_rows = "".join(
         f"<tr><th>{_esc(METRICS[m].label)}</th><td>{_esc(METRICS[m].definition)}</td>"
         f"<td>{_esc(METRICS[m].space)}</td>"
-        f"<td>{'higher' if METRICS[m].higher_is_better else 'lower'} is better</td></tr>"
+        f"<td>{METRICS[m].describe()['best']} is best</td></tr>"
         for m in result.metrics
     )
     flip_note = ""
@@ -384,7 +420,7 @@ def _header(result: EvalResult) -> str:
         f"<tr><th>Reference{'s' if len(result.references) != 1 else ''}</th><td><ul>{refs}</ul>"
         "</td></tr>"
         "<tr><th>Colour spaces</th><td>relMSE, SMAPE and MSE on linear HDR RGB; PSNR and SSIM "
-        "on sRGB clamped to [0,1] (no exposure); FLIP on linear HDR RGB.</td></tr>"
+        "on sRGB clamped to [0,1] (no exposure); FLIP and mean bias on linear HDR RGB.</td></tr>"
         f"<tr><th>mcdenoise</th><td>version {_esc(result.version)}, evaluated "
         f"{_esc(result.created)}</td></tr></table>"
         '<h3>Metric definitions</h3><table class="meta">'
@@ -398,10 +434,12 @@ def render_html(result: EvalResult, out_dir: str | os.PathLike[str]) -> str:
     out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
     # FLIP gets a column only when some row has a value (it is an optional extra)
+    # FLIP only when some row has a value; the parts of a summary (bias R, G, B) under it
     shown = [
         m
         for m in result.metrics
-        if m != "flip" or any(r.metrics.get(m) is not None for r in result.records)
+        if (m != "flip" or any(r.metrics.get(m) is not None for r in result.records))
+        and METRICS[m].part_of not in result.metrics
     ] or list(result.metrics)
     sections = [_header(result)]
     for index, scene in enumerate(result.scenes()):

@@ -154,7 +154,13 @@ class EvalResult:
         """A plain-text summary table (one line per record) for terminals and logs."""
         from mcdenoise.eval.metrics import METRICS
 
-        shown = [m for m in self.metrics if any(r.metrics.get(m) is not None for r in self.records)]
+        # the parts of a summary metric (bias R, G, B) stay in the JSON and CSV
+        shown = [
+            m
+            for m in self.metrics
+            if any(r.metrics.get(m) is not None for r in self.records)
+            and METRICS[m].part_of not in self.metrics
+        ]
         head = ["scene", "method", "spp", *(METRICS[m].label for m in shown), "vs noisy", "status"]
         rows = [head]
         # two outputs of one method (e.g. two trained models) are told apart by their file
@@ -164,7 +170,7 @@ class EvalResult:
             if shared[(r.scene, r.method, r.spp)] > 1:
                 name += f" [{Path(r.file).name}]"
             cells = [r.scene, name, "" if r.spp is None else str(r.spp)]
-            cells += [_short(r.metrics.get(m)) for m in shown]
+            cells += [_short(r.metrics.get(m), signed=METRICS[m].signed) for m in shown]
             cells.append("" if r.relmse_ratio is None else f"{r.relmse_ratio:.3g}x")
             cells.append(f"FAILED: {r.reason}" if r.failed else "ok")
             rows.append(cells)
@@ -194,11 +200,13 @@ class EvalResult:
         )
 
 
-def _short(value: float | None) -> str:
+def _short(value: float | None, *, signed: bool = False) -> str:
     if value is None:
         return "-"
     if math.isinf(value):
         return "inf" if value > 0 else "-inf"
+    if signed and math.isfinite(value):  # a relative change (mean bias): in percent
+        return f"{100.0 * value:+.2f}%"
     return f"{value:.4g}"
 
 

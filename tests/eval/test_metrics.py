@@ -219,7 +219,7 @@ def test_flip_black_reference_is_unavailable_not_a_crash():
                 M.flip(np.ones((3, 8, 8)), np.full((3, 8, 8), v))
             except M.MetricUnavailable as err:
                 print("unavailable:", err)
-        r = M.compute_metrics(np.ones((3, 8, 8)), np.zeros((3, 8, 8)))
+        r = M.compute_metrics(np.ones((3, 8, 8)), np.zeros((3, 8, 8)), ["relmse", "flip"])
         print("rest:", r.values["relmse"], sorted(r.unavailable))
         """
     )
@@ -260,7 +260,18 @@ def test_flip_missing_package_is_reported(monkeypatch):
 
 
 def test_registry_describes_every_metric():
-    assert list(M.METRICS) == ["relmse", "smape", "mse", "psnr", "ssim", "flip"]
+    assert list(M.METRICS) == [
+        "relmse",
+        "smape",
+        "mse",
+        "psnr",
+        "ssim",
+        "flip",
+        "bias",
+        "bias_r",
+        "bias_g",
+        "bias_b",
+    ]
     for name, metric in M.METRICS.items():
         d = metric.describe()
         assert d["definition"] and d["space"] and d["label"], name
@@ -299,3 +310,83 @@ def test_values_beyond_float32_do_not_break_flip_or_warn():
     assert values.values["psnr"] == math.inf  # both clamp to white in sRGB
     if M.flip_status() is None:
         assert values.values["flip"] is None and "float32" in values.unavailable["flip"]
+
+
+# --- mean bias (issue 20 item 7) ----------------------------------------------------------------
+
+# Produced by the command of PINNED above, printing the bias entries of M.METRICS.
+PINNED_BIAS = {
+    "bias": -0.009439116447282386,
+    "bias_r": -0.005031453070785075,
+    "bias_g": -0.0032032073865783596,
+    "bias_b": -0.019988264138270817,
+}
+
+
+def test_mean_bias_hand_values():
+    # 3 % less energy everywhere -> -0.03; 10 % more in R only -> R +0.1, summary +0.1 / 3
+    assert M.mean_bias(const(0.97), const(1.0)) == pytest.approx(-0.03, abs=1e-15)
+    x = const(1.0)
+    x[0] = 1.1
+    assert M.channel_bias(x, const(1.0)) == pytest.approx((0.1, 0.0, 0.0), abs=1e-15)
+    assert M.mean_bias(x, const(1.0)) == pytest.approx(0.1 / 3, abs=1e-15)
+    # a mean, not a pixelwise error: errors that cancel give no bias (but a relMSE)
+    y = const(1.0)
+    y[:, 0, 0], y[:, 0, 1] = 1.5, 0.5
+    assert M.mean_bias(y, const(1.0)) == pytest.approx(0.0, abs=1e-15)
+    assert M.relmse(y, const(1.0)) > 0
+    # the summary weighs channels by their energy: 10 % darker in a channel twice as bright
+    ref = const(1.0)
+    ref[1] = 2.0
+    out = ref.copy()
+    out[1] = 1.8
+    assert M.mean_bias(out, ref) == pytest.approx(-0.2 / 4.0, abs=1e-15)
+
+
+def test_mean_bias_pinned_and_registered():
+    out, ref = pinned_pair()
+    values = M.compute_metrics(out, ref, ["bias"])
+    assert list(values.values) == ["bias", "bias_r", "bias_g", "bias_b"]  # bias brings R, G, B
+    for name, pinned in PINNED_BIAS.items():
+        assert values.values[name] == pytest.approx(pinned, rel=1e-12), name
+    assert M.mean_bias(out, ref) == pytest.approx(PINNED_BIAS["bias"], rel=1e-12)
+    assert M.METRICS["bias"].signed and M.METRICS["bias_g"].part_of == "bias"
+    assert M.METRICS["bias"].describe()["best"] == "closest to 0"
+    # closest to 0 is best, whatever the sign
+    assert M.METRICS["bias"].better(0.01, -0.02) and M.METRICS["bias"].better(-0.01, 0.02)
+    assert M.METRICS["relmse"].better(0.1, 0.2) and M.METRICS["psnr"].better(30.0, 20.0)
+    # float32 and torch inputs: the same numbers
+    t = M.mean_bias(torch.from_numpy(out), torch.from_numpy(ref))
+    assert t == pytest.approx(PINNED_BIAS["bias"], rel=1e-12)
+
+
+def test_mean_bias_of_a_zero_reference_mean():
+    zero = const(0.0)
+    assert M.mean_bias(zero, zero) == 0.0  # nothing against nothing: no bias
+    with pytest.raises(M.MetricUnavailable, match="reference's mean is 0"):
+        M.mean_bias(const(0.1), zero)
+    # one black channel: only that channel is unavailable, with its reason
+    ref = const(1.0)
+    ref[2] = 0.0
+    out = const(1.0)
+    out[2] = 0.5
+    values = M.compute_metrics(out, ref, ["bias"])
+    assert not values.failed
+    assert values.values["bias_r"] == 0.0 and values.values["bias_b"] is None
+    assert "mean in B is 0" in values.unavailable["bias_b"]
+    assert values.values["bias"] == pytest.approx(0.5 / 2.0)
+    # a negative reference mean (possible with negative lobes): relative to its magnitude
+    assert M.mean_bias(const(-0.5), const(-1.0)) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_mean_bias_with_nonfinite_pixels(bad):
+    out = const(1.0)
+    out[1, 2, 3] = bad
+    # the plain function does not hide it ...
+    assert not math.isfinite(M.mean_bias(out, const(1.0)))
+    assert not math.isfinite(M.channel_bias(out, const(1.0))[1])
+    # ... and compute_metrics fails the output, as for every metric
+    values = M.compute_metrics(out, const(1.0), ["relmse", "bias"])
+    assert values.failed and values.bad_pixels == 1
+    assert values.values == dict.fromkeys(["relmse", "bias", "bias_r", "bias_g", "bias_b"])

@@ -361,3 +361,35 @@ def test_without_flip_the_column_is_dropped_and_the_reason_kept(tmp_path, monkey
     page = write_report(only, tmp_path / "flip")["html"].read_text(encoding="utf-8")
     table = re.search(r'<table class="results">.*?</table>', page).group(0)
     assert "<th>FLIP</th>" in table and ">n/a</td>" in table
+
+
+def test_mean_bias_in_every_format(tmp_path):
+    """Mean bias (issue 20 item 7): a column in HTML (percent, R G B under it, best = closest
+    to 0), the CSV and JSON (fractions, every channel) and the terminal table (summary only)."""
+    ref, noisy, _ = scene_images()
+    ref = ref + 0.05  # no zero pixels: each channel's mean is well away from 0
+    dark = ref * np.float32(0.96)  # 4 % of the energy lost in every channel
+    bright = ref.copy()
+    bright[0] *= np.float32(1.03)  # 3 % more red only
+    result = evaluate_arrays(ref, {"dark": dark, "bright": bright}, noisy=noisy, scene="s")
+    by = {r.file: r for r in result.records}
+    assert by["dark"].metrics["bias"] == pytest.approx(-0.04, abs=1e-6)
+    assert by["bright"].metrics["bias_r"] == pytest.approx(0.03, abs=1e-6)
+    assert by["bright"].metrics["bias_g"] == pytest.approx(0.0, abs=1e-6)
+    paths = write_report(result, tmp_path)
+    page = paths["html"].read_text(encoding="utf-8")
+    head = re.search(r'<table class="results"><thead>(.*?)</thead>', page).group(1)
+    assert "<th>mean bias</th>" in head and "bias R" not in head  # R, G, B under the summary
+    dark_cells = " ".join(_cells(page, "dark"))
+    assert "\u22124.00 %" in dark_cells and "R \u22124.00 % G \u22124.00 % B \u22124.00 %" in page
+    # bright's +1.x % is closer to 0 than dark's -4 %: it is the bold one, not the most negative
+    bias_best = re.findall(r'<b class="best">([+\u2212][0-9.]+ %)</b>', page)
+    assert len(bias_best) == 1 and bias_best[0].startswith("+"), bias_best
+    assert "closest to 0 is best" in page
+    with open(paths["csv"], newline="", encoding="utf-8") as f:
+        rows = {r["file"]: r for r in csv.DictReader(f)}
+    assert float(rows["dark"]["bias_b"]) == pytest.approx(-0.04, abs=1e-6)
+    data = load_json(paths["json"])
+    assert data["metrics"]["bias"]["best"] == "closest to 0"
+    text = result.format_table()
+    assert "-4.00%" in text and "bias R" not in text
