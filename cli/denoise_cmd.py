@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import click
 from mcdenoise_cli.options import read_options
@@ -23,8 +24,9 @@ from tqdm import tqdm
     "--method",
     default="auto",
     show_default=True,
-    help="Method (see `mcdenoise methods`), a comma-separated list, 'all' (every available "
-    "method), or 'auto' (the best available).",
+    help="Method (see `mcdenoise methods`, which lists the aliases too, e.g. xbf for "
+    "cross-bilateral), a comma-separated list, 'all' (every available method), or 'auto' "
+    "(the best available).",
 )
 @click.option(
     "-p",
@@ -32,7 +34,8 @@ from tqdm import tqdm
     "params",
     multiple=True,
     metavar="KEY=VALUE",
-    help="Override a method parameter (repeatable), e.g. -p radius=7.",
+    help="Override a method parameter (repeatable; see `mcdenoise methods`), e.g. "
+    "--method nlm -p search_radius=7.",
 )
 @click.option(
     "--model",
@@ -95,11 +98,13 @@ def denoise(
         )
     except dn.OptionError as err:
         raise click.UsageError(str(err)) from None
-    for outcome in outcomes:
-        if outcome.result is not None and as_json:
-            click.echo(json.dumps(outcome.result.to_dict()))
+    for outcome in outcomes:  # results on stdout, "skipped ..." on stderr
+        if outcome.result is None:
+            tqdm.write(outcome.summary(), file=sys.stderr)
+        elif as_json:
+            tqdm.write(json.dumps(outcome.result.to_dict()), file=sys.stdout)
         else:
-            tqdm.write(outcome.summary())
+            tqdm.write(outcome.summary(), file=sys.stdout)
 
 
 @click.command("methods")
@@ -108,12 +113,15 @@ def methods_cmd():
     from mcdenoise import denoise as dn
 
     best = None
+    aliases = dn.method_aliases()
     for m in dn.methods():
         reason = m.unavailable()
         if reason is None and best is None:
             best = m.name
         state = "available" if reason is None else f"unavailable: {reason}"
         click.echo(f"{m.name:<18} {m.summary}")
+        if aliases.get(m.name):
+            click.echo(f"{'':<18} alias: {', '.join(aliases[m.name])}")
         click.echo(
             f"{'':<18} needs: {', '.join(m.requires)}; uses if present: "
             f"{', '.join(m.uses) or '-'}; {state}"

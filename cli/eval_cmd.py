@@ -55,22 +55,36 @@ import click
 @click.option(
     "--progress/--no-progress",
     default=None,
-    help="Progress bars with --experiment (default: when on a terminal).",
+    help="Progress on stderr (default: a bar on a terminal, a few plain lines in a log).",
 )
-def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress):
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Evaluate outputs whose recorded source shows another scene than the reference "
+    "(a warning instead of an error).",
+)
+def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress, force):
     """Compare denoised OUTPUTS (files or folders) with a reference; write a report.
+
+    An output made by `mcdenoise denoise` records its source; when the source shows another
+    scene than the reference (by the mcdenoise:scene header attributes, else by the file
+    names: cornell_spp4.exr goes with ref/cornell.exr), eval refuses it unless --force.
 
     \b
     With --experiment SPEC (no OUTPUTS, no --ref): run the experiment and write
     report.html, results.json and results.csv into -o DIR.
     """
-    from pathlib import Path
+    from mcdenoise.denoise import check_output_folder
 
+    check_output_folder(out_dir, "-o")
+    mode = "auto" if progress is None else ("bar" if progress else "off")
     names = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
     if experiment is not None:
         if outputs or reference is not None or inputs:
             raise click.UsageError("--experiment takes no OUTPUTS, --ref or --input")
-        _experiment(experiment, out_dir, names, progress)
+        if force:
+            raise click.UsageError("--force applies to --ref, not to --experiment")
+        _experiment(experiment, out_dir, names, mode)
         return
     if reference is None:
         raise click.UsageError("Missing option '--ref' (or give --experiment SPEC).")
@@ -79,8 +93,16 @@ def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress)
 
     from mcdenoise.eval import evaluate, write_report
 
-    result = evaluate(reference, list(outputs), inputs=list(inputs) or None, metrics=names)
-    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    result = evaluate(
+        reference,
+        list(outputs),
+        inputs=list(inputs) or None,
+        metrics=names,
+        # seconds of work: a bar on a terminal, no lines in a log
+        progress=(sys.stderr.isatty() if mode == "auto" else mode),
+        force=force,
+        warn=lambda message: click.echo(f"mcdenoise: warning: {message}", err=True),
+    )
     paths = write_report(result, out_dir)
     click.echo(result.format_table() if hasattr(result, "format_table") else "")
     for kind in ("html", "json", "csv"):
@@ -91,7 +113,8 @@ def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress)
 def _experiment(spec_path, out_dir, metrics, progress):
     from mcdenoise.experiments import load_experiment, run_experiment
 
-    show = sys.stderr.isatty() if progress is None else progress
-    summary = run_experiment(load_experiment(spec_path), out_dir, progress=show, metrics=metrics)
-    for line in summary.messages():
-        click.echo(line)
+    summary = run_experiment(
+        load_experiment(spec_path), out_dir, progress=progress, metrics=metrics
+    )
+    for line, to_stderr in summary.messages():  # results on stdout, notes on stderr
+        click.echo(line, err=to_stderr)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
@@ -83,7 +82,9 @@ import click
     "per level (colour float32, features half) and DIR/ref/<id>.exr (colour only).",
 )
 @click.option(
-    "--progress/--no-progress", default=None, help="Progress bar (default: when on a terminal)."
+    "--progress/--no-progress",
+    default=None,
+    help="Progress on stderr (default: a bar on a terminal, a few plain lines in a log).",
 )
 def render(
     specs,
@@ -114,9 +115,13 @@ def render(
     """
     from mcdenoise_cli.parsing import parse_res, parse_shard, parse_spp
 
+    from mcdenoise.denoise import check_output_folder
     from mcdenoise.render.config import RenderConfig
     from mcdenoise.render.generate import render_dataset
 
+    check_output_folder(out, "-o")
+    if samples_out is not None:
+        check_output_folder(samples_out, "--samples-out")
     width, height = parse_res(res)
     config = RenderConfig(
         out=Path(out),
@@ -129,7 +134,7 @@ def render(
         pass_spp=pass_spp,
         seed=seed,
         compression=compression,
-        progress=sys.stderr.isatty() if progress is None else progress,
+        progress="auto" if progress is None else ("bar" if progress else "off"),
         frames=frames,
     )
     result = render_dataset(specs, config, random=random_count, samples_out=samples_out)

@@ -61,11 +61,18 @@ import click
     help="kpcn: run folder or model file to start from: --finetune-encoder keeps its trunk "
     "frozen; alone, the whole model trains further with this run's schedule.",
 )
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option(
+    "--quiet",
+    is_flag=True,
+    help="No progress (default: a bar on a terminal, a few plain lines in a log).",
+)
 def train(model, data, out, config_file, overrides, steps, resume, finetune_encoder, base, quiet):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
+    from mcdenoise.denoise import check_output_folder
     from mcdenoise.method import params_from_strings
     from mcdenoise.train.trainers import train_model
+
+    check_output_folder(out, "--out")
 
     outcome = train_model(
         out,

@@ -13,6 +13,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import re
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -46,12 +47,16 @@ __all__ = [
     "WriteOptions",
     "available_methods",
     "best_method",
+    "check_output_folder",
     "collect_inputs",
     "denoise",
     "denoise_file",
     "denoise_paths",
     "denoise_sequence",
+    "file_in_the_way",
     "get_method",
+    "make_output_folder",
+    "method_aliases",
     "methods",
     "params_from_strings",
     "parse_methods",
@@ -89,6 +94,18 @@ def parse_methods(spec: str) -> list[Method]:
     if len({m.name for m in chosen}) != len(chosen):
         raise InputError(f"--method {spec!r} names a method twice")
     return chosen
+
+
+def method_aliases() -> dict[str, list[str]]:
+    """Method name -> its aliases (``{"cross-bilateral": ["cross_bilateral", "xbf"]}``), for
+    ``mcdenoise methods`` and the ``--method`` help."""
+    from mcdenoise import registry
+
+    methods()  # the built-ins and their aliases are registered on first use
+    table: dict[str, list[str]] = {}
+    for alias, name in sorted(getattr(registry, "_ALIASES", {}).items()):
+        table.setdefault(name, []).append(alias)
+    return table
 
 
 def resolve_device(device: str | torch.device = "auto") -> torch.device:
@@ -308,8 +325,9 @@ def denoise_file(
     """Read ``input_path``, denoise it, write ``output_path`` atomically (colour only).
 
     The output keeps the input's data and display windows and records, as header attributes,
-    the method, its parameters, the source file, the seconds the method took, the device and
-    the sample count of the input. ``buffers``: the input already read with ``read`` (it is
+    the method, its parameters, the source file, the seconds the method took, the device,
+    the sample count of the input and the input's scene attributes
+    (:data:`SCENE_ATTRIBUTES`). ``buffers``: the input already read with ``read`` (it is
     then not read again).
     """
     from mcdenoise.io import load_buffers, save_buffers
@@ -331,6 +349,9 @@ def denoise_file(
     )
     attrs: dict[str, Any] = result.attributes()
     attrs["mcdenoise:source"] = str(src.resolve())
+    for key in SCENE_ATTRIBUTES:  # which scene this is: `mcdenoise eval` checks it
+        if key in buffers.attributes:
+            attrs[key] = buffers.attributes[key]
     if read.part is not None:
         attrs["mcdenoise:source_part"] = str(read.part)
     if buffers.spp is not None:
@@ -342,6 +363,11 @@ def denoise_file(
     return FileResult(src, dst, result, clamped)
 
 
+#: Header attributes of an input that say which scene it shows (written by
+#: ``mcdenoise render``); copied into each output so ``mcdenoise eval`` can check the pairing.
+SCENE_ATTRIBUTES = ("mcdenoise:scene", "mcdenoise:image", "mcdenoise:frame")
+
+
 def _check_output_path(src: Path, dst: Path) -> None:
     if dst.exists() and dst.is_dir():
         raise InputError(f"output {dst} is a folder; give a file name ending in .exr")
@@ -350,10 +376,68 @@ def _check_output_path(src: Path, dst: Path) -> None:
     if src.exists() and dst.exists() and src.resolve() == dst.resolve():
         raise InputError(f"output {dst} is the input file; choose another name")
     parent = dst.parent if str(dst.parent) else Path(".")
+    blocker = file_in_the_way(parent)
+    if blocker is not None:
+        raise InputError(f"cannot write {dst}: {blocker} is a file, not a folder")
     if not parent.is_dir():
         raise InputError(f"output folder {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise InputError(f"output folder {parent} is not writable")
+
+
+_EXTENSION = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}")
+
+
+def file_in_the_way(path: str | os.PathLike[str]) -> Path | None:
+    """The first of ``path``'s existing ancestors (or ``path`` itself) that is not a folder,
+    else ``None``: what stops ``path`` being used or created as a folder.
+
+    >>> file_in_the_way("no/such/folder") is None
+    True
+    """
+    p = Path(path)
+    for q in [*reversed(p.parents), p]:  # from the top down
+        if not q.exists():
+            return None
+        if not q.is_dir():
+            return q
+    return None
+
+
+def check_output_folder(
+    path: str | os.PathLike[str], option: str = "-o", *, exr_ok: bool = False
+) -> Path:
+    """Check that ``path`` (the value of ``option``) can be an output folder; return it.
+
+    ``exr_ok``: the option also takes an ``.exr`` file name (``denoise -o``), which the
+    message then mentions.
+
+    An existing folder is fine. Refused, with one line naming the cause: a file in the way
+    (``text.exr is a file, not a folder``), and a new name ending in a file extension
+    (``out/p.txt``), which is nearly always a file name given where a folder is wanted.
+
+    Raises:
+        InputError: as above.
+    """
+    p = Path(path)
+    blocker = file_in_the_way(p)
+    if blocker is not None:
+        raise InputError(f"{option} {p}: {blocker} is a file, not a folder")
+    if not p.exists() and _EXTENSION.fullmatch(p.suffix):
+        what = "an output file must end in .exr and " if exr_ok else ""
+        raise InputError(
+            f"{option} {p}: {what}a new folder must not have a file extension like {p.suffix!r}"
+        )
+    return p
+
+
+def make_output_folder(
+    path: str | os.PathLike[str], option: str = "-o", *, exr_ok: bool = False
+) -> Path:
+    """:func:`check_output_folder`, then create it (and its parents)."""
+    p = check_output_folder(path, option, exr_ok=exr_ok)
+    p.mkdir(parents=True, exist_ok=True)
+    return p
 
 
 def collect_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
@@ -392,7 +476,8 @@ def plan_outputs(
     """Output path for each input.
 
     * one input and ``output`` a file name (``*.exr``) -> that file;
-    * ``output`` a folder (existing, or a name without ``.exr``) -> ``folder/<stem>_<method>.exr``;
+    * ``output`` a folder (existing, or a new name without a file extension: ``out/p.txt`` is
+      refused, see :func:`check_output_folder`) -> ``folder/<stem>_<method>.exr``;
     * no ``output`` -> ``<stem>_<method>.exr`` next to each input.
 
     With ``part`` (a level of a multi-part file, e.g. ``spp16``) the name is
@@ -405,9 +490,12 @@ def plan_outputs(
                 raise InputError(
                     f"{len(inputs)} inputs but -o {out} names one file; give a folder instead"
                 )
+            parent = out.parent if str(out.parent) else Path(".")
+            blocker = file_in_the_way(parent)
+            if blocker is not None:
+                raise InputError(f"-o {out}: {blocker} is a file, not a folder")
             return [out]
-        if out.exists() and not out.is_dir():
-            raise InputError(f"output {out} exists and is not a folder")
+        check_output_folder(out, "-o", exr_ok=True)
         folders = [out] * len(inputs)
     else:
         folders = [p.parent for p in inputs]
@@ -545,19 +633,24 @@ def run_jobs(
     """Run the jobs of ``plan`` one after the other (each through :func:`denoise_file`).
 
     Creates the output folder first. Yields each job's outcome as soon as its file is
-    written; with ``progress`` a tqdm bar (stderr) counts the jobs when there are several.
+    written; with ``progress`` (see :func:`mcdenoise.progress.progress_bar`: a bar on a
+    terminal, lines in a log) the jobs are counted on stderr when there are several.
     """
-    from tqdm import tqdm
-
     from mcdenoise.io import load_buffers
+    from mcdenoise.progress import progress_bar
 
     read = read or ReadOptions()
     out = plan.output
     if out is not None and out.suffix.lower() != ".exr":
-        out.mkdir(parents=True, exist_ok=True)
-    bar = tqdm(plan.jobs, desc="denoise", unit="img", disable=not progress or len(plan.jobs) < 2)
+        make_output_folder(out, exr_ok=True)
+    bar = progress_bar(
+        total=len(plan.jobs),
+        desc="denoise",
+        unit="image",
+        progress=progress if len(plan.jobs) > 1 else False,
+    )
     try:
-        for job in bar:
+        for job in plan.jobs:
             buffers = None
             if job.method is None:
                 buffers = load_buffers(
@@ -586,8 +679,10 @@ def run_jobs(
             except MissingFeatureError as err:
                 if not plan.skip_missing:
                     raise
+                bar.update(1)
                 yield JobOutcome(job, skipped=str(err))
                 continue
+            bar.update(1)
             yield JobOutcome(job, res)
     finally:
         bar.close()

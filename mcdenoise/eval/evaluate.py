@@ -49,6 +49,12 @@ ATTR_SOURCE_PART = "mcdenoise:source_part"
 ATTR_SECONDS = "mcdenoise:seconds"
 ATTR_DEVICE = "mcdenoise:device"
 ATTR_SPP = "mcdenoise:spp"
+#: Written by ``mcdenoise render`` (and copied into outputs by ``mcdenoise denoise``): which
+#: scene, image and frame a file shows; :func:`same_scene` compares them.
+ATTR_SCENE = "mcdenoise:scene"
+ATTR_IMAGE = "mcdenoise:image"
+ATTR_FRAME = "mcdenoise:frame"
+_IDENTITY = (ATTR_SCENE, ATTR_IMAGE, ATTR_FRAME)
 
 _SPP_IN_NAME = re.compile(r"(?:^|[_\-.])spp(\d+)(?:$|[_\-.])", re.IGNORECASE)
 
@@ -131,6 +137,7 @@ class _Meta:
     device: str | None = None
     params: str | None = None
     spp: int | None = None
+    identity: dict[str, str] = field(default_factory=dict)  # scene, image, frame attributes
 
 
 def _as_int(v: Any) -> int | None:
@@ -174,6 +181,7 @@ def _meta(
         device=str(device) if device not in (None, "") else None,
         params=params,
         spp=spp_value,
+        identity={k: str(attrs[k]) for k in _IDENTITY if attrs.get(k) not in (None, "")},
     )
 
 
@@ -194,6 +202,73 @@ def _load(path: Path, part: str | None = None) -> tuple[np.ndarray, _Meta]:
     buf = load_buffers(path, part=part)
     color = buf["color"].detach().cpu().numpy()
     return color, _meta(path, buf.attributes, buf.spp, part)
+
+
+# --- does an output show the reference's scene? --------------------------------------------
+
+
+def same_scene(
+    reference: Mapping[str, str], source: Mapping[str, str], reference_stem: str, source_stem: str
+) -> bool:
+    """Whether an output made from ``source`` shows the scene of ``reference``.
+
+    ``reference`` and ``source`` are the scene attributes of the two headers
+    (``mcdenoise:scene``, ``mcdenoise:image``, ``mcdenoise:frame``, as written by
+    ``mcdenoise render`` and kept in the shipped samples). The rule:
+
+    1. both headers name a scene: the scenes must be equal, and so must the image ids and
+       the frames where both headers name them;
+    2. otherwise the file names decide: the source's stem must start with the reference's
+       stem at a word boundary, or the other way round (``cornell_spp4`` and ``cornell``;
+       the naming of ``data/samples`` and of ``mcdenoise render`` folders).
+
+    >>> same_scene({"mcdenoise:scene": "caustic"}, {"mcdenoise:scene": "cornell"}, "a", "a")
+    False
+    >>> same_scene({}, {}, "cornell", "cornell_spp4"), same_scene({}, {}, "dof", "cornell_spp4")
+    (True, False)
+    """
+    if ATTR_SCENE in reference and ATTR_SCENE in source:
+        return all(reference[k] == source[k] for k in _IDENTITY if k in reference and k in source)
+    return (
+        match_prefix(source_stem, [reference_stem]) is not None
+        or match_prefix(reference_stem, [source_stem]) is not None
+    )
+
+
+def _source_identity(meta: _Meta, depth: int = 4) -> tuple[dict[str, str], str]:
+    """Scene attributes and stem of the file ``meta``'s output was made from: the output's
+    own attributes when it records them, else its source's header (followed through a chain
+    of outputs), else ``{}`` and the recorded source's stem."""
+    if ATTR_SCENE in meta.identity:
+        return meta.identity, Path(meta.source or meta.path).stem
+    assert meta.source is not None
+    src = _source_path(meta)
+    if src is not None and depth > 0:
+        try:
+            upstream = _probe(src, meta.source_part)
+        except (InputError, OSError):
+            upstream = None
+        if upstream is not None:
+            if ATTR_SCENE in upstream.identity or upstream.source is None:
+                return upstream.identity, src.stem
+            return _source_identity(upstream, depth - 1)
+    return {}, Path(meta.source).stem
+
+
+def _source_path(meta: _Meta) -> Path | None:
+    """The file of ``meta``'s ``mcdenoise:source`` (relative: to the output), if it exists."""
+    if meta.source is None:
+        return None
+    src = Path(meta.source)
+    if not src.is_absolute() and not src.is_file():
+        src = meta.path.parent / src
+    return src if src.is_file() else None
+
+
+def _describe_scene(identity: Mapping[str, str], stem: str) -> str:
+    if ATTR_SCENE in identity:
+        return f"scene {identity[ATTR_SCENE]!r}"
+    return f"scene {stem!r} by its file name"
 
 
 # --- the engine ---------------------------------------------------------------------------
@@ -355,9 +430,16 @@ def evaluate(
     *,
     inputs: Sequence[PathLike] | None = None,
     metrics: Sequence[str] | None = None,
-    progress: bool = False,
+    progress: bool | str = False,
+    force: bool = False,
+    warn: Callable[[str], None] | None = None,
 ) -> EvalResult:
     """Evaluate denoised EXR files (and their noisy inputs) against reference EXR(s).
+
+    An output whose recorded source (``mcdenoise:source``) shows another scene than its
+    reference (see :func:`same_scene`) is refused, naming both; with ``force`` it is evaluated
+    and ``warn`` (default: ``warnings.warn``) gets the message, which is also noted in the
+    record. Outputs with no recorded source are not checked.
 
     Args:
         reference: a reference EXR, or a folder of reference EXRs (matched to each output by
@@ -368,15 +450,18 @@ def evaluate(
             ``"noisy"`` row of the scene it matches.
         metrics: metric names (default: every registered metric; FLIP is reported as
             unavailable, with the reason, when ``flip_evaluator`` is not installed).
-        progress: show a tqdm progress bar on stderr.
+        progress: report progress on stderr (:func:`mcdenoise.progress.progress_bar`).
+        force: evaluate outputs whose source shows another scene than the reference (warn).
+        warn: receives the warning lines of ``force``.
 
     Returns:
         An :class:`~mcdenoise.eval.results.EvalResult` with one record per evaluated image.
 
     Raises:
         InputError: a path does not exist, an output matches no reference (the message names
-            it), an output is a reference, or an image differs in size from its reference
-            (the message names both files and sizes).
+            it), an output is a reference, an output's source shows another scene (without
+            ``force``), or an image differs in size from its reference (the message names
+            both files and sizes).
         mcdenoise.errors.ExrError: an EXR cannot be read.
     """
     result = _new_result(metrics)
@@ -413,18 +498,23 @@ def evaluate(
             )
         return hit
 
-    # 2. find each output's noisy input
+    # 2. find each output's noisy input; check that it shows the reference's scene
     planned: dict[str, _Planned] = {}
+    ref_ids: dict[Path, dict[str, str]] = {}
     for key, meta in given.items():
         plan = _Planned(meta=meta, scene=scene_of(meta.path, "output"))
         if meta.source is not None:
-            src = Path(meta.source)
-            if not src.is_absolute() and not src.is_file():
-                src = meta.path.parent / src  # a relative source: relative to the output
-            if src.is_file():
+            src = _source_path(meta)  # a relative source: relative to the output
+            if src is not None:
                 plan.input, plan.input_part = src, meta.source_part
             else:
                 plan.notes.append(f"noisy input {meta.source} ({ATTR_SOURCE}) not found")
+            problem = _scene_mismatch(meta, refs[plan.scene], ref_ids)
+            if problem is not None:
+                if not force:
+                    raise InputError(f"{problem}; give the reference of that scene, or --force")
+                plan.notes.append(problem)
+                (warn or _warn)(f"{problem} (evaluated anyway: --force)")
         if plan.input is None and noisy_given:
             by_stem = {p.stem: p for p in noisy_given.values()}
             hit = match_prefix(meta.path.stem, list(by_stem))
@@ -455,11 +545,9 @@ def evaluate(
 
     # 5. jobs per scene: each noisy input (by spp, name) followed by its outputs, then the rest
     total = len(noisy_files) + len(planned)
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    from mcdenoise.progress import progress_bar
 
-        bar = tqdm(total=total, desc="eval", unit="image")
+    bar = progress_bar(total=total, desc="eval", unit="image", progress=progress)
     try:
         for scene in sorted({*noisy_scene.values(), *(p.scene for p in planned.values())}):
             jobs: list[_Job] = []
@@ -489,12 +577,31 @@ def evaluate(
                 str(ref_path),
                 ref_color,
                 jobs,
-                progress=bar.update if bar is not None else None,
+                progress=bar.update,
             )
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     return result
+
+
+def _scene_mismatch(meta: _Meta, ref: Path, ref_ids: dict[Path, dict[str, str]]) -> str | None:
+    """Why ``meta``'s output does not show the scene of reference ``ref``, or ``None``."""
+    if ref not in ref_ids:
+        ref_ids[ref] = _probe(ref).identity
+    identity, stem = _source_identity(meta)
+    if same_scene(ref_ids[ref], identity, ref.stem, stem):
+        return None
+    return (
+        f"output {meta.path} was made from {meta.source} "
+        f"({_describe_scene(identity, stem)}) but the reference {ref} shows "
+        f"{_describe_scene(ref_ids[ref], ref.stem)}"
+    )
+
+
+def _warn(message: str) -> None:
+    import warnings
+
+    warnings.warn(message, stacklevel=3)
 
 
 def _references(reference: PathLike) -> dict[str, Path]:
@@ -564,7 +671,9 @@ def run_eval(
     *,
     inputs: Sequence[PathLike] | None = None,
     metrics: Sequence[str] | None = None,
-    progress: bool = False,
+    progress: bool | str = False,
+    force: bool = False,
+    warn: Callable[[str], None] | None = None,
 ) -> tuple[EvalResult, dict[str, Path]]:
     """:func:`evaluate` then :func:`~mcdenoise.eval.report.write_report` into ``out_dir``.
 
@@ -573,5 +682,13 @@ def run_eval(
     """
     from mcdenoise.eval.report import write_report
 
-    result = evaluate(reference, outputs, inputs=inputs, metrics=metrics, progress=progress)
+    result = evaluate(
+        reference,
+        outputs,
+        inputs=inputs,
+        metrics=metrics,
+        progress=progress,
+        force=force,
+        warn=warn,
+    )
     return result, write_report(result, out_dir)

@@ -263,6 +263,7 @@ def run_unit(
 
 
 def _write_output(unit: Unit, result: Any, median: float, buffers: Any, out: Path) -> None:
+    from mcdenoise.denoise import SCENE_ATTRIBUTES
     from mcdenoise.io import FeatureBuffers, save_buffers
 
     path = unit.output_path(out)
@@ -277,6 +278,9 @@ def _write_output(unit: Unit, result: Any, median: float, buffers: Any, out: Pat
     attrs["mcdenoise:seconds"] = float(median)  # the median of the timed runs
     attrs["mcdenoise:label"] = unit.entry.label
     attrs["mcdenoise:source"] = str(unit.scene.noisy.resolve())
+    for key in SCENE_ATTRIBUTES:  # which scene this is: `mcdenoise eval` checks it
+        if key in buffers.attributes:
+            attrs[key] = buffers.attributes[key]
     attrs["mcdenoise:source_part"] = unit.level.part
     attrs["mcdenoise:spp"] = int(unit.level.spp)
     save_buffers(path, image, attributes=attrs)
@@ -302,9 +306,9 @@ class RunSummary:
     result: Any = None
     name: str = ""
 
-    def messages(self) -> list[str]:
-        """The lines ``mcdenoise eval --experiment`` prints: what ran and was reused, the
-        skipped methods, the report's files."""
+    def messages(self) -> list[tuple[str, bool]]:
+        """The lines ``mcdenoise eval --experiment`` prints, each with ``True`` for stderr:
+        what ran and was reused, the report's files (stdout); the skipped methods (stderr)."""
         result = self.result
         rendered = (
             f"rendered {len(self.rendered)} image(s), reused {len(self.render_skipped)}; "
@@ -312,13 +316,16 @@ class RunSummary:
             else ""
         )
         lines = [
-            f"experiment {self.name}: {len(result.scenes)} scene(s) x {len(result.spps)} spp "
-            f"level(s) x {len(result.labels)} method(s); {rendered}ran {len(self.ran)} unit(s), "
-            f"reused {len(self.reused)} finished"
+            (
+                f"experiment {self.name}: {len(result.scenes)} scene(s) x {len(result.spps)} "
+                f"spp level(s) x {len(result.labels)} method(s); {rendered}ran "
+                f"{len(self.ran)} unit(s), reused {len(self.reused)} finished",
+                False,
+            )
         ]
-        lines += [f"skipped {label}: {reason}" for label, reason in result.skipped.items()]
-        lines += [f"{kind}: {self.paths[kind]}" for kind in ("json", "csv")]
-        lines.append(f"report: {self.paths['html']}")
+        lines += [(f"skipped {label}: {reason}", True) for label, reason in result.skipped.items()]
+        lines += [(f"{kind}: {self.paths[kind]}", False) for kind in ("json", "csv")]
+        lines.append((f"report: {self.paths['html']}", False))
         return lines
 
 
@@ -333,15 +340,17 @@ def run_units(
     settings: RunSettings,
     *,
     device: Any,
-    progress: bool = False,
+    progress: bool | str = False,
     summary: RunSummary | None = None,
 ) -> dict[tuple[str, int, str], dict[str, Any]]:
     """Run the units that have no valid record yet; return every unit's record by key.
 
     Each record is written atomically as soon as its unit finishes, so an exception or
-    Ctrl-C loses at most the unit in progress.
+    Ctrl-C loses at most the unit in progress. ``progress``: units done / total, the current
+    scene, level and method, and the time left, on stderr
+    (:func:`mcdenoise.progress.progress_bar`).
     """
-    from tqdm.auto import tqdm
+    from mcdenoise.progress import progress_bar
 
     summary = summary if summary is not None else RunSummary()
     records: dict[tuple[str, int, str], dict[str, Any]] = {}
@@ -354,7 +363,13 @@ def run_units(
         else:
             todo.append(unit)
     loaded: dict[str, Any] = {}
-    with tqdm(total=len(todo), desc="experiment", unit="run", disable=not progress) as bar:
+    with progress_bar(
+        total=len(units),
+        initial=len(units) - len(todo),
+        desc="denoise",
+        unit="unit",
+        progress=progress if todo else False,
+    ) as bar:
         for unit in todo:
             scene, level = unit.scene, unit.level
             ref_key = f"ref:{scene.id}"
@@ -366,7 +381,7 @@ def run_units(
                 for k in [k for k in loaded if not k.startswith("ref:")]:
                     del loaded[k]
                 loaded[level_key] = _load_color(scene.noisy, level.part)[1]
-            bar.set_postfix_str(f"{scene.id} {level.spp} spp {unit.entry.label}", refresh=False)
+            bar.set_postfix_str(f"{scene.id} {level.spp} spp {unit.entry.label}")
             record = run_unit(unit, loaded[level_key], loaded[ref_key], out, settings, device)
             path = unit.path(out)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -390,7 +405,7 @@ def run_experiment(
     spec: ExperimentSpec,
     out: str | os.PathLike[str],
     *,
-    progress: bool = False,
+    progress: bool | str = False,
     metrics: Sequence[str] | None = None,
 ) -> RunSummary:
     """Run the experiment ``spec`` into the folder ``out`` and write its report there.
@@ -399,7 +414,9 @@ def run_experiment(
         spec: a validated :class:`~mcdenoise.experiments.spec.ExperimentSpec`.
         out: the experiment folder (created): ``report.html``, ``results.json``,
             ``results.csv``, ``images/``, ``outputs/``, ``work/`` and, by default, ``data/``.
-        progress: tqdm progress bars on stderr (rendering, then the units).
+        progress: progress on stderr, stage by stage: render, denoise (units done / total,
+            scene, level, method, time left), report; a bar on a terminal, plain lines in a
+            log (:func:`mcdenoise.progress.progress_bar`).
         metrics: overrides the spec's metrics (must include relmse).
 
     Returns:
@@ -410,6 +427,7 @@ def run_experiment(
     """
     from mcdenoise.denoise import resolve_device
     from mcdenoise.eval.metrics import resolve_metrics
+    from mcdenoise.progress import progress_bar
 
     root = Path(out)
     try:
@@ -449,18 +467,23 @@ def run_experiment(
         records = run_units(
             units, root, settings, device=device, progress=progress, summary=summary
         )
-    result = assemble(
-        spec,
-        scenes=scenes,
-        entries=entries,
-        skipped=skipped,
-        records=[records[u.key] for u in units],
-        metrics=names,
-        data_folder=folder,
-        strip_spp=strip,
-        out=root,
-        machine_at_start=at_start,
-    )
-    summary.result = result
-    summary.paths = write_experiment_report(result, root)
+    with progress_bar(total=2, desc="report", unit="step", progress=progress) as bar:
+        bar.set_postfix_str("statistics")
+        result = assemble(
+            spec,
+            scenes=scenes,
+            entries=entries,
+            skipped=skipped,
+            records=[records[u.key] for u in units],
+            metrics=names,
+            data_folder=folder,
+            strip_spp=strip,
+            out=root,
+            machine_at_start=at_start,
+        )
+        bar.update(1)
+        bar.set_postfix_str("figures and report.html")
+        summary.result = result
+        summary.paths = write_experiment_report(result, root)
+        bar.update(1)
     return summary

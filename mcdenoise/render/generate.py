@@ -160,16 +160,25 @@ def generate(jobs: Sequence[ImageJob], config: RenderConfig) -> GenerateResult:
         if todo:
             _require_mitsuba()
             result.variant = _select_variant(config.variant)
-            from tqdm.auto import tqdm
+            from mcdenoise.progress import progress_bar
 
             if config.frames is None:
-                for job in tqdm(todo, desc="render", unit="image", disable=not config.progress):
-                    rendered = render_image(job, config, result.variant)
-                    record = write_image(rendered, config)
-                    own_records[job.id] = record
-                    write_shard_manifest(out, own_name, config.settings(), i, n, own_records)
-                    result.rendered.append(job.id)
-                    merge_manifests(out)
+                with progress_bar(
+                    total=len(mine),
+                    initial=len(mine) - len(todo),
+                    desc="render",
+                    unit="image",
+                    progress=config.progress,
+                ) as bar:
+                    for job in todo:
+                        bar.set_postfix_str(job.id)
+                        rendered = render_image(job, config, result.variant)
+                        record = write_image(rendered, config)
+                        own_records[job.id] = record
+                        write_shard_manifest(out, own_name, config.settings(), i, n, own_records)
+                        result.rendered.append(job.id)
+                        merge_manifests(out)
+                        bar.update(1)
             else:
                 _render_sequences(todo, partial, config, result, own_records, own_name)
         elif own_name not in existing:  # record that this shard ran (nothing was left to do)
@@ -224,13 +233,14 @@ def _render_sequences(
 ) -> None:
     """The per-frame loop of :func:`generate`: the shard manifest is rewritten after every
     frame, so an interrupted sequence resumes at its first missing frame."""
-    from tqdm.auto import tqdm
+    from mcdenoise.progress import progress_bar
 
     assert config.frames is not None and result.variant is not None
     out, (i, n) = config.out, config.shard
     total = len(todo) * config.frames
-    with tqdm(total=total, desc="render", unit="frame", disable=not config.progress) as bar:
+    with progress_bar(total=total, desc="render", unit="frame", progress=config.progress) as bar:
         for job in todo:
+            bar.set_postfix_str(job.id)
 
             def on_frame(record: dict[str, Any], job_id: str = job.id) -> None:
                 own_records[job_id] = record

@@ -36,9 +36,9 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor, nn
 from torch.nn.parallel import DistributedDataParallel
-from tqdm import tqdm
 
 from mcdenoise.errors import InputError
+from mcdenoise.progress import progress_bar, write_line
 from mcdenoise.train.checkpoint import CheckpointError, RunFolder
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import LoadReport, PatchSampler
@@ -316,12 +316,12 @@ def _train(
 
     t0 = time.perf_counter()
     epoch_loss: list[float] = []
-    bar = tqdm(
+    bar = progress_bar(
         total=cfg.steps,
         initial=start,
         desc=f"train {cfg.model}",
         unit="step",
-        disable=not (progress and ctx.is_main),
+        progress=progress if ctx.is_main else False,
     )
     try:
         for step in range(start, cfg.steps):
@@ -371,7 +371,6 @@ def _train(
                         (opt, sched, scaler, gen),
                         ctx,
                         streams,
-                        bar,
                         done=done,
                         best=best,
                         skipped=skipped,
@@ -407,7 +406,6 @@ def _validate_and_save(
     ],
     ctx: DistContext,
     streams: list[dict[str, Tensor]],
-    bar: tqdm,
     *,
     done: int,
     best: float,
@@ -442,7 +440,7 @@ def _validate_and_save(
     record["best_val_loss"] = best
     run.append_metrics(record)
     if progress:
-        bar.write(
+        write_line(  # a progress message: stderr, above the bar
             "step {step}: train {tl} val {vl:.5g} (best {b:.5g})".format(
                 step=done,
                 tl="n/a" if record["train_loss"] is None else f"{record['train_loss']:.5g}",
