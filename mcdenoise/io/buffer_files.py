@@ -40,6 +40,7 @@ from mcdenoise.io.exr import (
     write_exr,
     write_exr_parts,
 )
+from mcdenoise.io.limits import check_pixel_limit, check_read_size
 from mcdenoise.io.profiles import (
     LAYOUT_ATTR,
     LAYOUT_VERSION,
@@ -88,6 +89,7 @@ def read_buffers(
     spp: int | None = None,
     max_pixels: int | None = None,
     strict: bool = True,
+    max_read_bytes: int | None = None,
 ) -> LoadResult:
     """Like :func:`load_buffers`, but return the resolution details too.
 
@@ -133,9 +135,20 @@ def read_buffers(
             "broadcast or padded: choose one part with part="
         )
 
+    for i in used:
+        check_pixel_limit(parts[i], src, max_pixels)
+    # Every part and channel about to be read, counted before anything is allocated.
+    check_read_size(src, parts, by_part, max_read_bytes=max_read_bytes)
     pixels: dict[str, np.ndarray] = {}
     for i in used:
-        pixels.update(read_exr(path, part=i, channels=by_part[i], max_pixels=max_pixels).pixels)
+        got = read_exr(
+            path,
+            part=i,
+            channels=by_part[i],
+            max_pixels=max_pixels,
+            max_read_bytes=max_read_bytes,
+        )
+        pixels.update(got.pixels)
     built = assemble(cmap, pixels)
     notes = cmap.notes + built.notes
 
@@ -165,6 +178,7 @@ def load_buffers(
     part: str | int | None = None,
     spp: int | None = None,
     max_pixels: int | None = None,
+    max_read_bytes: int | None = None,
 ) -> FeatureBuffers:
     """Read an EXR file into :class:`FeatureBuffers` (float32 ``(C, H, W)`` tensors).
 
@@ -178,6 +192,8 @@ def load_buffers(
         spp: samples per pixel of the colour, if the file does not record it (needed to turn
             moments or per-sample variances into variances of the mean).
         max_pixels: refuse larger data windows (default ``$MCDENOISE_MAX_PIXELS`` or 200 MP).
+        max_read_bytes: refuse reading more bytes, over every part and channel read
+            (default ``$MCDENOISE_MAX_READ_BYTES`` or 1 GiB); see :mod:`mcdenoise.io.limits`.
 
     Returns:
         FeatureBuffers over the data window with ``source``, ``profile``, ``channels``,
@@ -198,6 +214,7 @@ def load_buffers(
         spp=spp,
         max_pixels=max_pixels,
         strict=True,
+        max_read_bytes=max_read_bytes,
     ).buffers
 
 

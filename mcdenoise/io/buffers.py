@@ -259,6 +259,20 @@ class FeatureBuffers:
         return out
 
 
+#: Finite values beyond this magnitude are treated like +/-Inf by :func:`sanitize`: no render
+#: produces them (they come from damaged pixel data) and the filters' float32 arithmetic
+#: overflows on them (squares, sums of squares) into NaN/Inf mid-method.
+MAX_MAGNITUDE = 1e18
+
+
+def out_of_range_counts(t: torch.Tensor) -> tuple[int, int, int]:
+    """(NaN, +/-Inf, finite beyond +/-:data:`MAX_MAGNITUDE`) counts of ``t``."""
+    nan = int(torch.isnan(t).sum())
+    inf = int(torch.isinf(t).sum())
+    huge = int((torch.isfinite(t) & (t.abs() > MAX_MAGNITUDE)).sum())
+    return nan, inf, huge
+
+
 def sanitize(
     buffers: FeatureBuffers, *, clamp_negative: Mapping[str, bool] | None = None
 ) -> tuple[FeatureBuffers, dict[str, int]]:
@@ -266,9 +280,10 @@ def sanitize(
 
     Policy (documented in the README): NaN -> 0; +Inf -> the largest finite value of that
     buffer (0 if none); -Inf -> 0 for ``color``-like and variance buffers, the smallest finite
-    value otherwise. Colour, albedo, diffuse/specular and every variance are clamped at 0
-    (a negative variance or radiance is not physical); normals, positions and motion keep
-    their sign. ``clamp_negative`` overrides the clamp per buffer name.
+    value otherwise. Finite values beyond +/-:data:`MAX_MAGNITUDE` (damaged pixel data) count
+    as +/-Inf, and "finite" above means within that range. Colour, albedo, diffuse/specular
+    and every variance are clamped at 0 (a negative variance or radiance is not physical);
+    normals, positions and motion keep their sign. ``clamp_negative`` overrides the clamp per buffer name.
     """
     nonneg = {"color", "albedo", "diffuse", "specular", "visibility", "depth"}
     out = buffers.to()
@@ -279,7 +294,7 @@ def sanitize(
         clamp = name.endswith(VAR_SUFFIX) or base in nonneg
         if clamp_negative is not None and name in clamp_negative:
             clamp = clamp_negative[name]
-        bad = ~torch.isfinite(t)
+        bad = ~torch.isfinite(t) | (t.abs() > MAX_MAGNITUDE)
         n_bad = int(bad.sum())
         n_neg = int((t < 0).sum()) if clamp else 0
         if n_bad == 0 and n_neg == 0:
@@ -290,9 +305,9 @@ def sanitize(
             hi = float(finite.max()) if finite.numel() else 0.0
             lo = float(finite.min()) if finite.numel() else 0.0
             fixed = torch.where(torch.isnan(fixed), torch.zeros_like(fixed), fixed)
-            fixed = torch.where(fixed == float("inf"), torch.full_like(fixed, hi), fixed)
+            fixed = torch.where(fixed > MAX_MAGNITUDE, torch.full_like(fixed, hi), fixed)
             fixed = torch.where(
-                fixed == float("-inf"), torch.full_like(fixed, 0.0 if clamp else lo), fixed
+                fixed < -MAX_MAGNITUDE, torch.full_like(fixed, 0.0 if clamp else lo), fixed
             )
         if clamp:
             fixed = fixed.clamp_min(0.0)

@@ -17,7 +17,11 @@ Windows
 Safety
     * :func:`probe_exr` reads headers only. :func:`read_exr` refuses, before any pixel is
       allocated, a part whose data window holds more than ``max_pixels`` pixels (default:
-      the ``MCDENOISE_MAX_PIXELS`` environment variable, else 200 megapixels).
+      the ``MCDENOISE_MAX_PIXELS`` environment variable, else 200 megapixels), a read
+      needing more than ``max_read_bytes`` (``MCDENOISE_MAX_READ_BYTES``, else 1 GiB), and a
+      file too small for the pixel data its headers declare (:mod:`mcdenoise.io.limits`).
+    * Messages say what is wrong in a user's terms (:mod:`mcdenoise.io.exr_messages`
+      translates OpenEXR's texts, whatever bytes they hold) and what to do.
     * Every failure (missing file, folder, empty file, not an EXR, corrupt or truncated data,
       unknown part or channel, unwritable destination) raises :class:`~mcdenoise.errors.ExrError`
       with a one-line message naming the file. A truncated or corrupt file never yields partial
@@ -47,11 +51,16 @@ import numpy as np
 
 from mcdenoise.errors import ExrError, InputError
 from mcdenoise.io.atomic import atomic_path
+from mcdenoise.io.exr_messages import error_text as _error_text
+from mcdenoise.io.exr_messages import explain, readable_name
+from mcdenoise.io.limits import (  # noqa: F401  (re-exported: the limits' historic home)
+    DEFAULT_MAX_PIXELS,
+    MAX_PIXELS_ENV,
+    check_pixel_limit,
+    check_read_size,
+    resolve_max_pixels,
+)
 
-#: Environment variable holding the default pixel limit of :func:`read_exr`.
-MAX_PIXELS_ENV = "MCDENOISE_MAX_PIXELS"
-#: Default pixel limit (data-window pixels of one part) when the variable is not set.
-DEFAULT_MAX_PIXELS = 200_000_000
 #: Largest finite half-float value.
 HALF_MAX = 65504.0
 #: Compression names accepted by :func:`write_exr` (an optional ``:level`` may follow
@@ -213,38 +222,9 @@ def _oiio():
     return OpenImageIO
 
 
-def _error_text(obj: Any) -> str:
-    """``obj.geterror()`` as one line; never raises (messages of corrupt files may not decode)."""
-    try:
-        text = obj.geterror()
-    except Exception:  # messages about corrupt files may hold undecodable bytes
-        text = "(undecodable error message)"
-    text = " ".join(str(text).split())
-    return text or "unknown error"
-
-
 def _clear_global_error() -> None:
     # OpenImageIO prints pending global errors at interpreter exit: always drain them.
     _error_text(_oiio())
-
-
-def resolve_max_pixels(max_pixels: int | None = None) -> int:
-    """The pixel limit to apply: ``max_pixels`` if given, else ``$MCDENOISE_MAX_PIXELS``,
-    else :data:`DEFAULT_MAX_PIXELS`."""
-    if max_pixels is not None:
-        if isinstance(max_pixels, bool) or not isinstance(max_pixels, int) or max_pixels <= 0:
-            raise InputError(f"max_pixels must be a positive integer, got {max_pixels!r}")
-        return max_pixels
-    env = os.environ.get(MAX_PIXELS_ENV)
-    if env is None or not env.strip():
-        return DEFAULT_MAX_PIXELS
-    try:
-        value = int(env.strip().replace("_", ""))
-    except ValueError:
-        value = 0
-    if value <= 0:
-        raise InputError(f"{MAX_PIXELS_ENV}={env!r} is not a positive integer")
-    return value
 
 
 def _check_readable(path: Path) -> None:
@@ -279,7 +259,7 @@ def _py_value(value: Any) -> Any:
 
 
 def _part_from_spec(index: int, spec: Any) -> ExrPart:
-    names = list(spec.channelnames)
+    names = [readable_name(n) for n in spec.channelnames]
     formats = list(spec.channelformats) or [spec.format] * len(names)
     channels = tuple(
         ExrChannel(n, _PIXEL_TYPES.get(str(fmt), "unknown"))  # type: ignore[arg-type]
@@ -375,7 +355,7 @@ def _open_input(path: Path) -> Any:
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         msg = _error_text(oiio)
-        raise ExrError(f"{path}: cannot be opened as EXR: {msg}")
+        raise ExrError(f"{path}: {explain(msg, str(path), 'the header')}")
     if inp.format_name() != "openexr":
         fmt = inp.format_name()
         inp.close()
@@ -406,7 +386,7 @@ def probe_exr(path: str | os.PathLike[str]) -> list[ExrPart]:
         parts = _probe_with_openexr(p)
         if parts is not None:
             return parts
-        raise ExrError(f"{p}: cannot be opened as EXR: {msg}")
+        raise ExrError(f"{p}: {explain(msg, str(p), 'the header')}")
     try:
         if inp.format_name() != "openexr":
             raise ExrError(f"{p}: is not an OpenEXR file (read as {inp.format_name()})")
@@ -419,10 +399,13 @@ def probe_exr(path: str | os.PathLike[str]) -> list[ExrPart]:
             try:
                 parts.append(_part_from_spec(index, spec))
             except UnicodeDecodeError:
-                raise ExrError(f"{p}: corrupt header (undecodable names)") from None
+                raise ExrError(
+                    f"{p}: cannot read the header: a name in part {index} is not valid text "
+                    "(the header is damaged); write or copy the file again"
+                ) from None
             index += 1
         if inp.has_error:
-            raise ExrError(f"{p}: corrupt header: {_error_text(inp)}")
+            raise ExrError(f"{p}: {explain(_error_text(inp), str(p), 'the header')}")
         if not parts:
             raise ExrError(f"{p}: holds no image part")
         return parts
@@ -449,24 +432,13 @@ def select_part(parts: Sequence[ExrPart], part: str | int | None, path: str = ""
     raise ExrError(f"{where}no part named {part!r}; the file has parts: {names}")
 
 
-def check_pixel_limit(part: ExrPart, path: str, max_pixels: int | None = None) -> None:
-    """Raise ExrError if ``part``'s data window holds more than the pixel limit."""
-    limit = resolve_max_pixels(max_pixels)
-    n = part.num_pixels
-    if n > limit:
-        raise ExrError(
-            f"{path}: data window of {part.width}x{part.height} = {n:,} pixels exceeds the "
-            f"limit of {limit:,} pixels (corrupt header?); if the file is genuine, raise the "
-            f"limit with max_pixels= or the environment variable {MAX_PIXELS_ENV}"
-        )
-
-
 def read_exr(
     path: str | os.PathLike[str],
     *,
     part: str | int | None = None,
     channels: Sequence[str] | None = None,
     max_pixels: int | None = None,
+    max_read_bytes: int | None = None,
 ) -> ExrImage:
     """Read channels of one part of an EXR file by name.
 
@@ -478,6 +450,9 @@ def read_exr(
             matter.
         max_pixels: refuse a data window with more pixels (default: ``$MCDENOISE_MAX_PIXELS``
             or 200 megapixels); checked on the header before anything is allocated.
+        max_read_bytes: refuse a read needing more memory (channels read x pixels x 4
+            bytes; default ``$MCDENOISE_MAX_READ_BYTES`` or 1 GiB), and any file too small
+            to hold what its headers declare (see :mod:`mcdenoise.io.limits`).
 
     Returns:
         An :class:`ExrImage` whose ``pixels`` maps each requested channel to a float32
@@ -510,6 +485,7 @@ def read_exr(
         return ExrImage(str(p), chosen, {})
     if chosen.num_pixels == 0:
         raise ExrError(f"{p}: empty data window {chosen.data_window}")
+    check_read_size(str(p), parts, {chosen.index: wanted}, max_read_bytes=max_read_bytes)
 
     index = {n: i for i, n in enumerate(names)}
     idx = sorted(index[c] for c in wanted)
@@ -517,7 +493,8 @@ def read_exr(
     inp = _open_input(p)
     try:
         if not inp.seek_subimage(chosen.index, 0):
-            raise ExrError(f"{p}: cannot seek to part {chosen.index}: {_error_text(inp)}")
+            what = f"part {chosen.index}"
+            raise ExrError(f"{p}: {explain(_error_text(inp), str(p), what)}")
         data = _read_range(inp, p, chosen, lo, hi)
     finally:
         inp.close()
@@ -538,7 +515,9 @@ def _read_range(inp: Any, p: Path, part: ExrPart, lo: int, hi: int) -> np.ndarra
     """Channels ``[lo, hi)`` of ``part`` as float32 ``(H, W, hi - lo)``; ExrError on any error."""
     data = inp.read_image(part.index, 0, lo, hi, "float")
     if data is None or inp.has_error:
-        raise ExrError(f"{p}: corrupt or truncated pixel data: {_error_text(inp)}")
+        label = f"part {part.name!r}" if part.name else f"part {part.index}"
+        what = f"the pixels of {label}"
+        raise ExrError(f"{p}: {explain(_error_text(inp), str(p), what)}")
     data = np.asarray(data, dtype=np.float32)
     if data.ndim == 2:
         data = data[:, :, None]

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from mcdenoise.io.buffer_files import MappingArg, read_buffers
-from mcdenoise.io.buffers import BUFFER_NAMES
+from mcdenoise.io.buffers import BUFFER_NAMES, MAX_MAGNITUDE, out_of_range_counts
 from mcdenoise.io.exr import ExrPart, probe_exr
 from mcdenoise.io.profiles import Profile, ProfileError
 
@@ -122,6 +122,8 @@ class FileInfo:
             lines.append(f"note        {n}")
         for pr in self.problems:
             lines.append(f"PROBLEM     {pr}")
+        if self.problems:
+            lines.append("            (denoise refuses this file until the problem is fixed)")
         return "\n".join(lines)
 
 
@@ -176,6 +178,7 @@ def describe(
     part: str | int | None = None,
     spp: int | None = None,
     max_pixels: int | None = None,
+    max_read_bytes: int | None = None,
 ) -> FileInfo:
     """Describe an EXR file (see the module docstring); arguments as for ``load_buffers``.
 
@@ -193,6 +196,7 @@ def describe(
             spp=spp,
             max_pixels=max_pixels,
             strict=False,
+            max_read_bytes=max_read_bytes,
         )
     except ProfileError as e:
         parts = probe_exr(path)
@@ -240,6 +244,7 @@ def describe(
             )
         )
     ref = res.parts[res.used_parts[0]] if res.used_parts else res.parts[0]
+    notes = list(res.notes) + _repair_notes(fb)
     return FileInfo(
         path=src,
         profile=cmap.profile,
@@ -255,6 +260,30 @@ def describe(
         buffers=infos,
         missing=[b for b in BUFFER_NAMES if b not in fb],
         unmapped=list(cmap.unmapped),
-        notes=list(res.notes),
+        notes=notes,
         problems=list(cmap.problems),
     )
+
+
+def _repair_notes(fb: Any) -> list[str]:
+    """One line per buffer holding values ``denoise`` repairs (NaN, Inf, out of range)."""
+    notes = []
+    for name in fb.names():
+        nan, inf, huge = out_of_range_counts(fb[name])
+        if not (nan or inf or huge):
+            continue
+        counts = [
+            f"{n} {what}"
+            for n, what in (
+                (nan, "NaN values"),
+                (inf, "Inf values"),
+                (huge, f"values beyond +/-{MAX_MAGNITUDE:.0e} (damaged pixel data?)"),
+            )
+            if n
+        ]
+        held = ", ".join(counts[:-1]) + " and " + counts[-1] if len(counts) > 1 else counts[0]
+        notes.append(
+            f"{name} holds {held}; denoise repairs them (NaN -> 0, Inf and out-of-range "
+            "values -> the buffer's nearest in-range value)"
+        )
+    return notes

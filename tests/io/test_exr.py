@@ -338,7 +338,8 @@ def test_enormous_data_window_is_refused_before_reading(
     with pytest.raises(ExrError) as exc:
         read_exr(huge)
     msg = str(exc.value)
-    assert f"{n}x{n}" in msg and "MCDENOISE_MAX_PIXELS" in msg and "max_pixels" in msg
+    assert f"{n}x{n}" in msg and "MCDENOISE_MAX_PIXELS" in msg
+    assert "max_pixels=" not in msg  # the message is for command-line users too
     _assert_one_line_error(exc, huge)
 
 

@@ -52,6 +52,10 @@ class IncompleteFeatureError(MissingFeatureError):
         )
         if self.channels is not None:
             msg += f" (file channels: {shorten(self.channels)})"
+        msg += (
+            "; write the file again with all of its channels, or name the channels to use "
+            "in a mapping file (--mapping, see docs/formats.md)"
+        )
         ValueError.__init__(self, msg)
 
 
