@@ -72,7 +72,7 @@ samples: install system-deps
 
 # A small training set (gitignored): the curated specs in data/scenes plus DATA_RANDOM
 # procedural scenes, 128x128, noisy 4/16/64 spp, 1024 spp references (mcdenoise render;
-# re-running skips finished images). Size and time: README, "Rendering data sets".
+# re-running skips finished images). Size and time: docs/rendering.md.
 DATA_OUT    ?= data/generated/train
 DATA_RANDOM ?= 12
 DATA_SEED   ?= 0

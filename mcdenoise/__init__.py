@@ -1,8 +1,9 @@
 """mcdenoise: a batch tool for Monte Carlo denoising experiments.
 
-Subpackages follow the data flow (see README "Architecture"):
-``io`` (EXR feature buffers), ``filters`` (classical filters), ``eval`` (metrics, reports),
-``models`` / ``train`` (learned denoisers), ``render`` (Mitsuba 3 data generation).
+Subpackages follow the data flow (docs/architecture.md): ``render`` (Mitsuba 3 data),
+``io`` (EXR feature buffers and renderer profiles), ``prep`` (buffers -> tensors), ``filters``
+(tensor operators), ``models`` (pure networks), ``methods`` (one adapter per denoiser, called
+through ``denoise``), ``train``, ``eval`` (metrics, reports) and ``experiments``.
 """
 
 __version__ = "0.1.0"

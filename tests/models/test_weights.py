@@ -74,7 +74,7 @@ def test_shipped_kpcn_loads_and_denoises_both_sources(samples_dir) -> None:
     # at 16 spp most of what is left is light bled into the dark ceiling pixels along the
     # emitter's edge (0.35x / 0.24x the noisy relMSE, 73 % of it in 30 pixels; the weights
     # shipped before 2026-11-22's second session: 0.16x / 0.18x); the per-scale-loss model of
-    # the README (runs/kpcn8-sl05), which bleeds more, fails the 0.4 bound on `basic` (0.49x)
+    # docs/results/kpcn.md (runs/kpcn8-sl05), which bleeds more, fails the 0.4 bound on `basic` (0.49x)
     for spp, bound in ((4, 0.2), (16, 0.4)):
         b = load_buffers(samples_dir / f"cornell_spp{spp}.exr")
         full = denoise(b, "kpcn").image
