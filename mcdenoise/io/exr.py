@@ -247,7 +247,9 @@ def _check_readable(path: Path) -> None:
 
 
 def _py_value(value: Any) -> Any:
-    if isinstance(value, (str, int, float)):
+    if isinstance(value, str):
+        return readable_name(value)  # bytes of a damaged header that are not UTF-8 -> \xNN
+    if isinstance(value, (int, float)):
         return value
     if isinstance(value, (tuple, list)):
         return tuple(_py_value(v) for v in value)
@@ -819,6 +821,8 @@ def _prepare_part(
             raise InputError(
                 f"{p}: attribute {key!r} must be a str, int or float, got {type(value).__name__}"
             )
+        if isinstance(value, str):
+            value = readable_name(value).replace("\0", "")  # OpenEXR strings: UTF-8, no NUL
         if isinstance(value, int) and not -(2**31) <= value < 2**31:
             raise InputError(f"{p}: attribute {key!r} does not fit a 32-bit int: {value}")
         spec.attribute(key, value)
