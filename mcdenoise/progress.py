@@ -80,7 +80,7 @@ class LineProgress:
         desc: str,
         unit: str,
         initial: int = 0,
-        interval: float = LOG_INTERVAL,
+        interval: float | None = None,
     ) -> None:
         self.iterable = iterable
         if total is None and iterable is not None and hasattr(iterable, "__len__"):
@@ -91,7 +91,7 @@ class LineProgress:
         self.n = initial
         self._initial = initial
         self._postfix = ""
-        self._interval = interval
+        self._interval = LOG_INTERVAL if interval is None else interval
         self._start = time.perf_counter()
         self._last = self._start
         self._closed = False

@@ -1,0 +1,138 @@
+"""``mcdenoise eval --ref REF OUT``: an output whose recorded source shows another scene than
+the reference is refused, naming both (``--force``: a warning); outputs with no recorded source
+are evaluated without a word. The scene comes from the ``mcdenoise:scene`` headers, else from
+the file names (``cornell_spp4.exr`` goes with ``ref/cornell.exr``)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from fast_methods import add_methods, fast_method
+from mcdenoise_cli.main import main
+
+from mcdenoise.eval.evaluate import same_scene
+from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
+
+SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
+REF = SAMPLES / "ref"
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.fixture
+def here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    add_methods(monkeypatch, fast_method("box3"))
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def denoise(src: Path, out: str) -> Path:
+    r = run("denoise", src, "-m", "box3", "-o", out)
+    assert r.exit_code == 0, r.output
+    return Path(out)
+
+
+def without_scene(src: Path, dst: Path) -> Path:
+    """``src``'s colour with no ``mcdenoise:*`` attributes (as another renderer writes it)."""
+    color = load_buffers(src)["color"]
+    save_buffers(dst, FeatureBuffers({"color": color}, spp=4))
+    return dst
+
+
+def test_denoise_records_the_scene_of_its_input(here: Path) -> None:
+    out = denoise(SAMPLES / "cornell_spp4.exr", "o.exr")
+    attrs = load_buffers(out).attributes
+    assert attrs["mcdenoise:scene"] == "cornell"
+    assert attrs["mcdenoise:source"] == str((SAMPLES / "cornell_spp4.exr").resolve())
+
+
+def test_another_scene_is_refused_naming_both(here: Path) -> None:
+    denoise(SAMPLES / "cornell_spp4.exr", "out.exr")
+    r = run("eval", "--ref", REF / "caustic.exr", "out.exr", "-o", "rep")
+    assert r.exit_code == 1 and r.stdout == ""
+    (err,) = r.stderr.splitlines()
+    assert "cornell_spp4.exr" in err and "scene 'cornell'" in err
+    assert "caustic.exr" in err and "scene 'caustic'" in err and "--force" in err
+    assert not (here / "rep").exists()  # nothing written
+
+
+def test_force_evaluates_with_a_warning_that_the_report_keeps(here: Path) -> None:
+    denoise(SAMPLES / "cornell_spp4.exr", "out.exr")
+    r = run("eval", "--ref", REF / "caustic.exr", "out.exr", "-o", "rep", "--force")
+    assert r.exit_code == 0, r.output
+    (warning,) = r.stderr.splitlines()
+    assert warning.startswith("mcdenoise: warning: output out.exr was made from ")
+    assert "'cornell'" in warning and "'caustic'" in warning
+    assert "caustic" in r.stdout  # the table: results on stdout
+    records = json.loads((here / "rep" / "results.json").read_text())["records"]
+    out = next(rec for rec in records if rec["file"] == "out.exr")
+    assert any("'caustic'" in note for note in out["notes"])
+
+
+def test_the_right_scene_passes_silently(here: Path) -> None:
+    denoise(SAMPLES / "cornell_spp4.exr", "out.exr")
+    r = run("eval", "--ref", REF / "cornell.exr", "out.exr", "-o", "rep")
+    assert r.exit_code == 0, r.output
+    assert r.stderr == ""
+
+
+def test_a_folder_of_references_checks_the_matched_one(here: Path) -> None:
+    """An output renamed after another scene is matched to that reference by name, and the
+    recorded source gives it away."""
+    denoise(SAMPLES / "cornell_spp4.exr", "caustic_spp4_box3.exr")
+    r = run("eval", "--ref", REF, "caustic_spp4_box3.exr", "-o", "rep")
+    assert r.exit_code == 1
+    assert "scene 'cornell'" in r.stderr and "scene 'caustic'" in r.stderr
+
+
+def test_no_recorded_source_is_accepted_without_a_word(here: Path) -> None:
+    shutil.copy(SAMPLES / "cornell_spp4.exr", here / "mine.exr")  # not made by denoise
+    r = run("eval", "--ref", REF / "caustic.exr", "mine.exr", "-o", "rep")
+    assert r.exit_code == 0, r.output
+    assert r.stderr == ""
+
+
+def test_without_scene_headers_the_names_decide(here: Path) -> None:
+    without_scene(SAMPLES / "dof_spp4.exr", here / "dof_spp4.exr")
+    without_scene(SAMPLES / "cornell_spp4.exr", here / "cornell_spp4.exr")
+    denoise(here / "dof_spp4.exr", "a.exr")
+    denoise(here / "cornell_spp4.exr", "b.exr")
+    assert "mcdenoise:scene" not in load_buffers(here / "a.exr").attributes
+    wrong = run("eval", "--ref", REF / "cornell.exr", "a.exr", "-o", "rep")
+    assert wrong.exit_code == 1
+    assert "scene 'dof_spp4' by its file name" in wrong.stderr
+    right = run("eval", "--ref", REF / "cornell.exr", "b.exr", "-o", "rep")
+    assert right.exit_code == 0 and right.stderr == ""
+
+
+def test_a_moved_source_is_judged_by_its_recorded_name(here: Path) -> None:
+    src = without_scene(SAMPLES / "dof_spp4.exr", here / "dof_spp4.exr")
+    denoise(src, "a.exr")
+    src.unlink()
+    r = run("eval", "--ref", REF / "cornell.exr", "a.exr", "-o", "rep")
+    assert r.exit_code == 1 and "'dof_spp4'" in r.stderr
+
+
+def test_a_chain_of_outputs_is_followed_to_the_scene(here: Path) -> None:
+    first = denoise(SAMPLES / "cornell_spp4.exr", "first.exr")
+    second = denoise(first, "second.exr")
+    assert load_buffers(second).attributes["mcdenoise:scene"] == "cornell"
+    r = run("eval", "--ref", REF / "caustic.exr", "second.exr", "-o", "rep")
+    assert r.exit_code == 1 and "'cornell'" in r.stderr
+
+
+def test_the_rule() -> None:
+    scene = "mcdenoise:scene"
+    assert same_scene({scene: "a"}, {scene: "a"}, "x", "y")  # headers win over names
+    assert not same_scene({scene: "a"}, {scene: "b"}, "a", "a_spp4")
+    assert not same_scene(
+        {scene: "a", "mcdenoise:image": "a_2"}, {scene: "a", "mcdenoise:image": "a"}, "a", "a"
+    )
+    assert same_scene({scene: "a"}, {}, "cornell", "cornell_spp16")  # one header: names
+    assert not same_scene({}, {}, "box", "boxes_spp4")  # word boundary
