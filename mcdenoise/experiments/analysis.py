@@ -16,7 +16,13 @@ equal-quality tables, the reference's noise floor, statistics over scenes.
 Over scenes ("overall"): per (method, spp) the mean total seconds and the geometric mean
 relMSE over the scenes (only for (method, spp) that succeeded in every scene, so means are
 comparable), the geometric means of the equal-quality spp and speed-up, the overall Pareto
-front and equal-time table, and the bootstrap statistics of :mod:`~mcdenoise.experiments.stats`.
+front and equal-time table, and the bootstrap statistics of :mod:`~mcdenoise.experiments.stats`
+(an :class:`OverallView`), plus the mean bias over scenes (arithmetic mean, with its range).
+
+A scene whose measured noisy curve rises with spp (:func:`~.quality.noisy_rises`: fireflies)
+is *flagged*; when some scenes are flagged and others not, the same overall findings are also
+computed without the flagged scenes (``ExperimentResult.without_flagged``), so the report can
+show both.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from mcdenoise.experiments.quality import (
     NoisyCurve,
     equal_quality,
     limited_by_reference,
+    noisy_rises,
     reference_noise_floor,
 )
 from mcdenoise.experiments.spec import NOISY, ExperimentSpec
@@ -88,6 +95,19 @@ def _geomean(values: Sequence[float | None]) -> float | None:
     return geometric_mean(values, invalid="none")
 
 
+def bias_of(record: Mapping[str, Any]) -> float | None:
+    """Mean bias of a record (output mean / reference mean − 1), ``None`` when failed, not
+    computed or not finite."""
+    if record.get("failed"):
+        return None
+    v = number((record.get("metrics") or {}).get("bias"))
+    return v if v is not None and math.isfinite(v) else None
+
+
+def _num(v: float) -> str:
+    return f"{v:.3g}"
+
+
 @dataclass
 class SceneSummary:
     """The per-scene findings (see the module docstring)."""
@@ -105,6 +125,28 @@ class SceneSummary:
     budgets: tuple[float, ...] = ()
     pareto: list[Point] = field(default_factory=list)
     equal_time: list[EqualTimeRow] = field(default_factory=list)
+    #: where the noisy curve rises with spp: (spp_a, e_a, spp_b, e_b), see ``noisy_rises``
+    rises: list[tuple[int, float, int, float]] = field(default_factory=list)
+
+    @property
+    def flagged(self) -> bool:
+        """The noisy curve is not monotone (fireflies): see :attr:`flag_reason`."""
+        return bool(self.rises)
+
+    @property
+    def flag_reason(self) -> str | None:
+        """One sentence for the reader: what rose, and why that matters."""
+        if not self.rises:
+            return None
+        where = "; ".join(
+            f"from {_num(ea)} at {a} spp to {_num(eb)} at {b} spp" for a, ea, b, eb in self.rises
+        )
+        return (
+            f"The error (relMSE) of plain rendering rises with more samples ({where}), although "
+            "Monte Carlo error falls as 1/N on average: a few very bright pixels (fireflies, "
+            "rare light paths of high energy) dominate this scene's relMSE, so its numbers, and "
+            "every mean over scenes that includes it, depend on where those few samples landed."
+        )
 
     def to_dict(self) -> dict[str, Any]:
         c = self.curve
@@ -136,6 +178,12 @@ class SceneSummary:
                 "one_over_n_constant": c.one_over_n(),
                 "seconds_per_spp": c.seconds_per_spp,
             },
+            "flagged": self.flagged,
+            "flag_reason": self.flag_reason,
+            "noisy_rises": [
+                {"from_spp": a, "from_relmse": ea, "to_spp": b, "to_relmse": eb}
+                for a, ea, b, eb in self.rises
+            ],
             "budgets": list(self.budgets),
             "pareto": [p.to_dict() for p in self.pareto],
             "equal_time": [r.to_dict() for r in self.equal_time],
@@ -150,7 +198,8 @@ class OverallRow:
     ``None`` unless the method succeeded in every scene (``complete``); ``eq_spp`` and
     ``speedup`` are geometric means of the per-scene equal-quality values; ``extrapolated`` and
     ``limited`` count the scenes where the equal-quality value was extrapolated / the error
-    was within 2× of the reference's noise floor.
+    was within 2× of the reference's noise floor. ``bias`` is the arithmetic mean over the
+    scenes of the mean bias, ``bias_min``/``bias_max`` its range (``None`` without values).
     """
 
     method: str
@@ -165,9 +214,34 @@ class OverallRow:
     speedup: float | None
     extrapolated: int
     limited: int
+    bias: float | None = None
+    bias_min: float | None = None
+    bias_max: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
+
+
+@dataclass
+class OverallView:
+    """The findings over a set of scenes: rows, Pareto front, equal time, statistics."""
+
+    scenes: list[str]
+    rows: list[OverallRow]
+    budgets: tuple[float, ...]
+    pareto: list[Point]
+    equal_time: list[EqualTimeRow]
+    stats: list[RatioStats]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "scenes": list(self.scenes),
+            "rows": [r.to_dict() for r in self.rows],
+            "budgets": list(self.budgets),
+            "pareto": [p.to_dict() for p in self.pareto],
+            "equal_time": [r.to_dict() for r in self.equal_time],
+            "statistics": [s.to_dict() for s in self.stats],
+        }
 
 
 @dataclass
@@ -192,6 +266,25 @@ class ExperimentResult:
     out: Path
     data_folder: Path
     notes: list[str] = field(default_factory=list)
+    #: the overall findings without the flagged scenes (``None``: none or all flagged)
+    without_flagged: OverallView | None = None
+
+    @property
+    def flagged(self) -> list[str]:
+        """Ids of the flagged scenes (noisy curve not monotone)."""
+        return [s.id for s in self.scenes if s.flagged]
+
+    @property
+    def view(self) -> OverallView:
+        """The overall findings over every scene."""
+        return OverallView(
+            scenes=[s.id for s in self.scenes],
+            rows=self.overall,
+            budgets=self.overall_budgets,
+            pareto=self.overall_pareto,
+            equal_time=self.overall_equal_time,
+            stats=self.stats,
+        )
 
     @property
     def labels(self) -> list[str]:
@@ -244,6 +337,10 @@ class ExperimentResult:
                     "seed": self.spec.stats_seed,
                     "rows": [s.to_dict() for s in self.stats],
                 },
+                "flagged_scenes": self.flagged,
+                "overall_without_flagged": (
+                    None if self.without_flagged is None else self.without_flagged.to_dict()
+                ),
             }
         )
 
@@ -281,6 +378,16 @@ def definitions(metrics: Sequence[str]) -> dict[str, str]:
             "ratio = geometric mean over scenes of relMSE(method) / relMSE(baseline) at the "
             "same spp, percentile bootstrap interval over scenes (seeded); wins = scenes where "
             "the method has the lowest relMSE of all methods at that spp"
+        ),
+        "mean_bias": (
+            "output mean / reference mean - 1 (metric 'bias', per channel 'bias_r', 'bias_g', "
+            "'bias_b'); over scenes: the arithmetic mean of the scenes' values and their range; "
+            "the report names every method whose |bias| exceeds 2 %"
+        ),
+        "flagged": (
+            "a scene whose measured noisy relMSE rises from one spp level to the next (outside "
+            f"{FLOOR_FACTOR:g}x the reference's noise floor): fireflies dominate its error; the "
+            "overall findings are also given without the flagged scenes"
         ),
         "metrics": ", ".join(f"{METRICS[m].label}: {METRICS[m].space}" for m in metrics),
     }
@@ -376,19 +483,12 @@ def assemble(
                 budgets=tuple(budgets),
                 pareto=front,
                 equal_time=equal_time(points, budgets, noisy_label=NOISY),
+                rises=noisy_rises(curve, floor) if curve is not None else [],
             )
         )
         if curve is None:
             notes.append(f"{scene.id}: no usable noisy curve (every noisy level failed)")
 
-    spps = sorted({int(r["spp"]) for r in recs})
-    overall = _overall(recs, [s.id for s in summaries], labels, spps)
-    overall_points = [
-        Point(o.method, o.spp, o.seconds, o.relmse)
-        for o in overall
-        if o.complete and o.seconds is not None and o.relmse is not None
-    ]
-    overall_budgets = spec.budgets or log_budgets([p.seconds for p in overall_points])
     baseline = spec.baseline
     if baseline not in labels:
         notes.append(
@@ -397,18 +497,12 @@ def assemble(
             + "; ratios are to 'noisy'"
         )
         baseline = NOISY
-    errors = {
-        (r["scene"], int(r["spp"]), r["method"]): e for r in recs if (e := relmse_of(r)) is not None
-    }
-    stats = compare_methods(
-        errors,
-        scenes=[s.id for s in summaries],
-        methods=labels,
-        spps=spps,
-        baseline=baseline,
-        resamples=spec.bootstrap,
-        confidence=spec.confidence,
-        seed=spec.stats_seed,
+    every = overall_view(spec, recs, [s.id for s in summaries], labels, baseline)
+    kept = [s.id for s in summaries if not s.flagged]
+    without = (
+        overall_view(spec, recs, kept, labels, baseline)
+        if kept and len(kept) < len(summaries)
+        else None
     )
     for label, reason in skipped.items():
         notes.append(f"skipped {label}: {reason}")
@@ -435,16 +529,60 @@ def assemble(
         metrics=list(metrics),
         scenes=summaries,
         records=recs,
-        overall=overall,
-        overall_budgets=tuple(overall_budgets),
-        overall_pareto=pareto_front(overall_points),
-        overall_equal_time=equal_time(overall_points, overall_budgets, noisy_label=NOISY),
-        stats=stats,
+        overall=every.rows,
+        overall_budgets=every.budgets,
+        overall_pareto=every.pareto,
+        overall_equal_time=every.equal_time,
+        stats=every.stats,
         baseline=baseline,
         strip_spp=strip_spp,
         out=out,
         data_folder=data_folder,
         notes=notes,
+        without_flagged=without,
+    )
+
+
+def errors_by_key(recs: Sequence[Mapping[str, Any]]) -> dict[tuple[str, int, str], float]:
+    """``(scene, spp, method) -> relMSE`` of every record that has one."""
+    return {
+        (r["scene"], int(r["spp"]), r["method"]): e for r in recs if (e := relmse_of(r)) is not None
+    }
+
+
+def overall_view(
+    spec: ExperimentSpec,
+    recs: Sequence[Mapping[str, Any]],
+    scenes: Sequence[str],
+    labels: Sequence[str],
+    baseline: str,
+) -> OverallView:
+    """The overall findings over ``scenes`` (rows, front, equal time, statistics)."""
+    spps = sorted({int(r["spp"]) for r in recs})
+    rows = _overall(recs, scenes, labels, spps)
+    points = [
+        Point(o.method, o.spp, o.seconds, o.relmse)
+        for o in rows
+        if o.complete and o.seconds is not None and o.relmse is not None
+    ]
+    budgets = spec.budgets or log_budgets([p.seconds for p in points])
+    stats = compare_methods(
+        errors_by_key(recs),
+        scenes=list(scenes),
+        methods=labels,
+        spps=spps,
+        baseline=baseline,
+        resamples=spec.bootstrap,
+        confidence=spec.confidence,
+        seed=spec.stats_seed,
+    )
+    return OverallView(
+        scenes=list(scenes),
+        rows=rows,
+        budgets=tuple(budgets),
+        pareto=pareto_front(points),
+        equal_time=equal_time(points, budgets, noisy_label=NOISY),
+        stats=stats,
     )
 
 
@@ -462,6 +600,7 @@ def _overall(
             ok = [r for r in rs if r is not None and relmse_of(r) is not None]
             complete = len(ok) == len(scenes) and bool(scenes)
             errs = [relmse_of(r) for r in ok]
+            biases = [b for r in ok if (b := bias_of(r)) is not None]
             eqs = [r.get("equal_quality") for r in ok if r.get("equal_quality")]
             eq_spp = (
                 _geomean([number(q["spp"]) for q in eqs]) if eqs and len(eqs) == len(ok) else None
@@ -491,6 +630,9 @@ def _overall(
                     speedup=speed if complete else None,
                     extrapolated=sum(1 for q in eqs if q.get("extrapolated")),
                     limited=sum(1 for r in ok if r.get("limited_by_reference")),
+                    bias=float(np.mean(biases)) if biases else None,
+                    bias_min=min(biases) if biases else None,
+                    bias_max=max(biases) if biases else None,
                 )
             )
     return rows

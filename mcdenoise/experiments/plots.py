@@ -31,7 +31,7 @@ from mcdenoise.io.atomic import atomic_path
 #: right of it widens the PNG (``bbox_inches="tight"``).
 FIGSIZE = (6.4, 4.4)
 #: Below this many decades a log axis also labels its minor ticks 2 and 5 (3 too below 1).
-LABEL_MINOR_BELOW = 2.5
+LABEL_MINOR_BELOW = 3.0
 DPI = 100
 _MARKERS = "osD^v<>pXh*"
 

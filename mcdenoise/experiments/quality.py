@@ -215,6 +215,33 @@ def reference_noise_floor(
     return float(finite.mean()) if finite.size else math.nan
 
 
+def noisy_rises(
+    curve: NoisyCurve, floor: float | None = None
+) -> list[tuple[int, float, int, float]]:
+    """Where the measured noisy curve *rises* with spp: ``(spp_a, e_a, spp_b, e_b)`` for each
+    pair of consecutive levels with ``e_b > e_a``.
+
+    The expected relMSE of plain rendering falls as ``1/N``; a measured rise means a few
+    pixels of huge value (fireflies: rare light paths of high contribution, e.g. caustics
+    seen through glass) dominate the mean, so that scene's errors, and every mean over scenes
+    that includes it, depend on where those few samples landed. Rises at levels whose error
+    is within :data:`FLOOR_FACTOR` × the reference's noise floor are left out: there the
+    reference's own noise decides the wiggle.
+
+    >>> c = NoisyCurve((1, 2, 4, 8), (177.0, 44.7, 119.0, 30.0), (1.0, 2.0, 4.0, 8.0))
+    >>> noisy_rises(c)
+    [(2, 44.7, 4, 119.0)]
+    >>> noisy_rises(NoisyCurve((1, 2), (0.02, 0.021), (1.0, 2.0)), floor=0.015)
+    []
+    """
+    out = []
+    for i in range(len(curve.spp) - 1):
+        a, b = curve.error[i], curve.error[i + 1]
+        if b > a and not limited_by_reference(b, floor):
+            out.append((curve.spp[i], float(a), curve.spp[i + 1], float(b)))
+    return out
+
+
 def limited_by_reference(error: float | None, floor: float | None) -> bool:
     """True when ``error`` is within :data:`FLOOR_FACTOR` × the reference's noise floor."""
     if error is None or floor is None or not math.isfinite(floor) or floor <= 0:

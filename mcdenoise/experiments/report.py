@@ -22,7 +22,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 from string import Template
@@ -36,12 +36,24 @@ from mcdenoise.eval.preview import choose_crop, crop
 from mcdenoise.eval.report import error_scale, write_png
 from mcdenoise.eval.results import encode_float
 from mcdenoise.eval.tonemap import auto_exposure, colorbar, display, false_color
-from mcdenoise.experiments.analysis import ExperimentResult, SceneSummary, number, relmse_of
+from mcdenoise.experiments.analysis import (
+    ExperimentResult,
+    SceneSummary,
+    number,
+    relmse_of,
+)
+from mcdenoise.experiments.htmlkit import LIM_MARK as _LIM_MARK
+from mcdenoise.experiments.htmlkit import esc as _esc
+from mcdenoise.experiments.htmlkit import g as _g
+from mcdenoise.experiments.htmlkit import img as _img
+from mcdenoise.experiments.htmlkit import sec as _sec
+from mcdenoise.experiments.htmlkit import slug as _slug
+from mcdenoise.experiments.htmlkit import sub as _sub
+from mcdenoise.experiments.htmlkit import table as _table
+from mcdenoise.experiments.overall_report import equal_time_table, overall_sections, plot_series
 from mcdenoise.experiments.quality import FLOOR_FACTOR
 from mcdenoise.experiments.spec import NOISY
-from mcdenoise.experiments.stats import BETTER, IS_BASELINE, WORSE
 from mcdenoise.io.atomic import write_text_atomic
-from mcdenoise.stats import geometric_mean
 
 #: Columns of results.csv before the metric columns.
 CSV_HEAD = (
@@ -74,8 +86,6 @@ CSV_TAIL = (
 #: Names of the PNGs this module writes (pruned when no longer shown).
 _OWN_IMAGE = re.compile(r"^(plot|strip)_[A-Za-z0-9._-]+\.png$")
 _MAX_ZOOM = 8
-#: The mark of a result within 2× of the reference's noise floor.
-_LIM_MARK = ' <span class="lim" title="within 2x of the reference noise floor">≈</span>'
 
 HOW_TO_READ = (
     "<p>A Monte Carlo renderer gets more accurate the longer it runs: its error (relMSE, "
@@ -180,72 +190,7 @@ def write_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
     write_text_atomic(path, buf.getvalue())
 
 
-# --- formatting ---------------------------------------------------------------------------
-
-
-def _esc(text: Any) -> str:
-    return html.escape(str(text), quote=True)
-
-
-def _g(value: Any, digits: int = 3) -> str:
-    v = number(value) if not isinstance(value, float | int) else float(value)
-    if v is None:
-        return "\u2013"
-    if math.isnan(v):
-        return "NaN"
-    if math.isinf(v):
-        return "\u221e" if v > 0 else "\u2212\u221e"
-    if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e5):
-        return f"{v:.{digits - 1}e}"
-    return f"{v:.{digits}g}"
-
-
-def _sec(value: Any) -> str:
-    v = number(value) if not isinstance(value, float | int) else float(value)
-    if v is None:
-        return "\u2013"
-    return f"{v:.3g} s"
-
-
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._") or "x"
-
-
-def _sub(text: str) -> str:
-    """A second line in a table cell (already escaped ``text``)."""
-    return f'<span class="sub">{text}</span>'
-
-
-def _img(name: str, alt: str, extra: str = "") -> str:
-    return f'<img src="images/{_esc(name)}" alt="{_esc(alt)}"{extra}>'
-
-
-def _table(head: Sequence[str], rows: Iterable[str], cls: str = "t") -> str:
-    th = "".join(f"<th>{h}</th>" for h in head)
-    return (
-        f'<table class="{cls}"><thead><tr>{th}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
-    )
-
-
 # --- plots --------------------------------------------------------------------------------
-
-
-def _plot_series(
-    result: ExperimentResult, records: Sequence[Mapping[str, Any]], x: str
-) -> dict[str, tuple[list[float], list[float]]]:
-    series: dict[str, tuple[list[float], list[float]]] = {}
-    for label in result.labels:
-        rs = sorted((r for r in records if r["method"] == label), key=lambda r: r["spp"])
-        xs, ys = [], []
-        for r in rs:
-            e = relmse_of(r)
-            xv = number(r.get(x)) if x != "spp" else float(r["spp"])
-            if e is not None and xv is not None:
-                xs.append(xv)
-                ys.append(e)
-        if xs:
-            series[label] = (xs, ys)
-    return series
 
 
 def _scene_plots(result: ExperimentResult, scene: SceneSummary, index: int, out: Path) -> list[str]:
@@ -257,68 +202,19 @@ def _scene_plots(result: ExperimentResult, scene: SceneSummary, index: int, out:
     c = scene.curve
     plot_error_vs_spp(
         out / "images" / spp_name,
-        _plot_series(result, recs, "spp"),
+        plot_series(result, recs, "spp"),
         one_over_n=c.one_over_n() if c is not None else None,
         floor=scene.noise_floor,
         title=f"{scene.id}: error vs samples per pixel",
     )
     plot_error_vs_time(
         out / "images" / time_name,
-        _plot_series(result, recs, "total_seconds"),
+        plot_series(result, recs, "total_seconds"),
         front=[(p.seconds, p.error, f"{p.method} {p.spp}") for p in scene.pareto],
         floor=scene.noise_floor,
         title=f"{scene.id}: error vs total time (render + denoise)",
     )
     return [spp_name, time_name]
-
-
-def _overall_plots(result: ExperimentResult, out: Path) -> list[str]:
-    from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time, plot_speedup
-
-    rows = [o for o in result.overall if o.complete]
-    fake = [
-        {
-            "method": o.method,
-            "spp": o.spp,
-            "total_seconds": o.seconds,
-            "metrics": {"relmse": o.relmse},
-        }
-        for o in rows
-    ]
-    floors = [s.noise_floor for s in result.scenes if s.noise_floor is not None]
-    floor = geometric_mean(floors, invalid="none")
-    noisy = [o for o in rows if o.method == NOISY and o.relmse]
-    c = geometric_mean([o.relmse * o.spp for o in noisy]) if noisy else None
-    names = [
-        "plot_overall_error_spp.png",
-        "plot_overall_error_time.png",
-        "plot_overall_speedup.png",
-    ]
-    n = len(result.scenes)
-    where = f"geometric mean over {n} scene{'s' if n != 1 else ''}"
-    plot_error_vs_spp(
-        out / "images" / names[0],
-        _plot_series(result, fake, "spp"),
-        one_over_n=c,
-        floor=floor,
-        title=f"Error vs samples per pixel ({where})",
-    )
-    plot_error_vs_time(
-        out / "images" / names[1],
-        _plot_series(result, fake, "total_seconds"),
-        front=[(p.seconds, p.error, f"{p.method} {p.spp}") for p in result.overall_pareto],
-        floor=floor,
-        title=f"Error vs total time ({where}; mean seconds)",
-    )
-    speed: dict[str, tuple[list[float], list[float]]] = {}
-    for label in result.labels:
-        if label == NOISY:
-            continue
-        pts = [(o.spp, o.speedup) for o in rows if o.method == label and o.speedup]
-        if pts:
-            speed[label] = ([p[0] for p in pts], [p[1] for p in pts])
-    plot_speedup(out / "images" / names[2], speed, title=f"Equal-quality speed-up ({where})")
-    return names
 
 
 # --- sections -----------------------------------------------------------------------------
@@ -371,57 +267,9 @@ def _threads(result: ExperimentResult) -> str:
 
 
 def _findings(result: ExperimentResult) -> str:
-    items: list[str] = []
-    strip = result.strip_spp
-    rows = {(o.method, o.spp): o for o in result.overall}
-    at = [
-        (o.relmse, o.method) for o in result.overall if o.spp == strip and o.complete and o.relmse
-    ]
-    if at:
-        best_e, best = min(at)
-        noisy = rows.get((NOISY, strip))
-        gain = (
-            f", {noisy.relmse / best_e:.3g}× lower than plain rendering"
-            if noisy and noisy.relmse and best != NOISY
-            else ""
-        )
-        items.append(
-            f"At {strip} spp the lowest error over the scenes is <b>{_esc(best)}</b> "
-            f"(relMSE {_g(best_e)}{gain})."
-        )
-    speed = [
-        (o.speedup, o) for o in result.overall if o.complete and o.speedup and o.method != NOISY
-    ]
-    if speed:
-        s, o = max(speed, key=lambda t: t[0])
-        flag = " (extrapolated beyond the ladder in some scenes)" if o.extrapolated else ""
-        items.append(
-            f"Largest equal-quality speed-up: <b>{_esc(o.method)}</b> from {o.spp} spp: "
-            f"plain rendering would need {_g(o.eq_spp)} spp for the same error, "
-            f"{_g(s)}× the time{flag}."
-        )
-    if result.overall_equal_time:
-        last = result.overall_equal_time[-1]
-        if last.best is not None:
-            items.append(
-                f"With the largest budget ({_sec(last.budget)}), the most accurate choice is "
-                f"<b>{_esc(last.best.method)}</b> at {last.best.spp} spp."
-            )
-    limited = [r for r in result.records if r.get("limited_by_reference")]
-    if limited:
-        items.append(
-            f'<span class="lim">{len(limited)} result(s) are within {FLOOR_FACTOR:g}× of the '
-            "reference's noise floor (marked ≈): there the reference limits what can be "
-            "measured.</span>"
-        )
-    better = [s for s in result.stats if s.verdict == BETTER and s.spp == strip]
-    if better and result.baseline != NOISY:
-        items.append(
-            f"Clearly better than {_esc(result.baseline)} at {strip} spp (whole "
-            f"{result.spec.confidence:.0%} interval below 1): "
-            + _esc(", ".join(s.method for s in better))
-            + "."
-        )
+    from mcdenoise.experiments.headlines import headlines
+
+    items = headlines(result)
     if not items:
         return ""
     return (
@@ -429,142 +277,6 @@ def _findings(result: ExperimentResult) -> str:
         + "".join(f"<li>{i}</li>" for i in items)
         + "</ul></div>"
     )
-
-
-def _overall_error_table(result: ExperimentResult) -> str:
-    spps = result.spps
-    rows = []
-    by = {(o.method, o.spp): o for o in result.overall}
-    for label in result.labels:
-        cells = []
-        for spp in spps:
-            o = by.get((label, spp))
-            if o is None or not o.complete:
-                n = o.scenes if o else 0
-                cells.append(
-                    '<td class="num fail" title="failed or missing in some scenes">'
-                    f"{n}/{len(result.scenes)} scenes</td>"
-                )
-                continue
-            front = any(p.method == label and p.spp == spp for p in result.overall_pareto)
-            lim = _LIM_MARK if o.limited else ""
-            cells.append(
-                f'<td class="num{" front" if front else ""}">{_g(o.relmse)}{lim}'
-                f'<span class="sub">{_sec(o.seconds)}</span></td>'
-            )
-        cls = ' class="noisy"' if label == NOISY else ""
-        rows.append(f"<tr{cls}><td>{_esc(label)}</td>{''.join(cells)}</tr>")
-    head = ["method", *(f"{s} spp" for s in spps)]
-    return (
-        '<p class="small">Each cell: relMSE (geometric mean over scenes) and, below, the mean '
-        "total seconds (render + denoise). Green cells are on the Pareto front.</p>"
-        + _table(head, rows)
-    )
-
-
-def _equal_time_table(rows: Sequence[Any]) -> str:
-    out = []
-    for r in rows:
-        if r.best is None:
-            out.append(
-                f'<tr><td class="num">{_sec(r.budget)}</td><td colspan="4">nothing fits</td></tr>'
-            )
-            continue
-        ru = r.runner_up
-        nz = r.noisy
-        out.append(
-            f'<tr><td class="num">{_sec(r.budget)}</td>'
-            f"<td><b>{_esc(r.best.method)}</b> at {r.best.spp} spp"
-            f'<span class="sub">relMSE {_g(r.best.error)}, {_sec(r.best.seconds)}</span></td>'
-            + (
-                f"<td>{_esc(ru.method)} at {ru.spp} spp{_sub(f'relMSE {_g(ru.error)}')}</td>"
-                if ru
-                else "<td>\u2013</td>"
-            )
-            + (f"<td>{nz.spp} spp{_sub(f'relMSE {_g(nz.error)}')}</td>" if nz else "<td>none</td>")
-            + f'<td class="num">{_g(r.gain)}{"×" if r.gain else ""}</td></tr>'
-        )
-    return _table(
-        [
-            "time budget",
-            "best choice",
-            "best other method",
-            "plain rendering",
-            "error of plain ÷ best",
-        ],
-        out,
-    )
-
-
-def _overall_eq_table(result: ExperimentResult) -> str:
-    spps = result.spps
-    by = {(o.method, o.spp): o for o in result.overall}
-    rows = []
-    for label in result.labels:
-        if label == NOISY:
-            continue
-        cells = []
-        for spp in spps:
-            o = by.get((label, spp))
-            if o is None or not o.complete or o.speedup is None:
-                cells.append("<td>\u2013</td>")
-                continue
-            dag = ""
-            if o.extrapolated:
-                dag = f'<span title="1/N law used in {o.extrapolated} scene(s)">†</span>'
-            eq_spp = _sub(f"{_g(o.eq_spp)} spp")
-            cells.append(f'<td class="num">{_g(o.speedup)}×{dag}{eq_spp}</td>')
-        rows.append(f"<tr><td>{_esc(label)}</td>{''.join(cells)}</tr>")
-    if not rows:
-        return '<p class="notes">No denoiser in this run.</p>'
-    return (
-        '<p class="small">Each cell: speed-up at equal quality (seconds plain rendering needs '
-        "for the method's error ÷ the method's total seconds) and, below, the spp plain "
-        "rendering needs; geometric means over scenes. † = extrapolated beyond the measured "
-        "ladder (1/N law) in some scene.</p>"
-        + _table(["method", *(f"from {s} spp" for s in spps)], rows)
-    )
-
-
-def _stats_table(result: ExperimentResult) -> str:
-    spps = result.spps
-    labels = [lb for lb in result.labels if lb != result.baseline]
-    by = {(s.method, s.spp): s for s in result.stats}
-    rows = []
-    for label in labels:
-        cells = []
-        for spp in spps:
-            s = by.get((label, spp))
-            if s is None or s.ratio is None:
-                cells.append(f"<td>{_esc(s.verdict if s else '')}</td>")
-                continue
-            cls = {BETTER: "better", WORSE: "worse"}.get(s.verdict, "unclear")
-            beats = f"wins {s.wins}/{s.scenes}, beats {_esc(result.baseline)} in {s.beats_baseline}"
-            cells.append(
-                f'<td class="num"><span class="{cls}">{_g(s.ratio)}</span>'
-                + _sub(f"[{_g(s.ci_low)}, {_g(s.ci_high)}]")
-                + _sub(_esc(s.verdict))
-                + _sub(beats)
-                + "</td>"
-            )
-        rows.append(f"<tr><td>{_esc(label)}</td>{''.join(cells)}</tr>")
-    conf = f"{result.spec.confidence:.0%}"
-    intro = (
-        f'<p class="small">Each cell: relMSE ÷ relMSE of <b>{_esc(result.baseline)}</b> '
-        f"(geometric mean over scenes; below 1 = lower error), its {conf} bootstrap interval "
-        f"over scenes ({result.spec.bootstrap} resamples, seed {result.spec.stats_seed}), the "
-        "verdict, in how many scenes the method has the lowest error of all methods (wins) and "
-        f"in how many it beats the baseline. {len(result.scenes)} scene(s): with few scenes "
-        "the intervals are wide, as they should be.</p>"
-    )
-    base_rows = [s for s in result.stats if s.verdict == IS_BASELINE]
-    wins = ", ".join(f"{s.spp} spp: {s.wins}" for s in base_rows)
-    tail = (
-        f'<p class="small">Wins of the baseline {_esc(result.baseline)}: {_esc(wins)}.</p>'
-        if wins
-        else ""
-    )
-    return intro + _table(["method", *(f"{s} spp" for s in spps)], rows) + tail
 
 
 def _scene_table(result: ExperimentResult, scene: SceneSummary) -> str:
@@ -606,6 +318,16 @@ def _scene_table(result: ExperimentResult, scene: SceneSummary) -> str:
     )
 
 
+def _metric(name: str, value: Any) -> str:
+    """A metric value for a table: signed ones (mean bias) in percent."""
+    v = number(value)
+    if v is not None and math.isfinite(v) and METRICS[name].signed:
+        from mcdenoise.eval.report import percent
+
+        return percent(v)
+    return _g(value, 4)
+
+
 def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
     shown = [
         m
@@ -620,7 +342,7 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
             cells = f'<td class="fail" colspan="{len(shown)}">FAILED: {_esc(r.get("reason"))}</td>'
         else:
             cells = "".join(
-                f'<td class="num">{_g((r.get("metrics") or {}).get(m), 4)}</td>' for m in shown
+                f'<td class="num">{_metric(m, (r.get("metrics") or {}).get(m))}</td>' for m in shown
             )
         runs = ", ".join(_g(v) for v in (r.get("timing") or {}).get("runs", []))
         rows.append(
@@ -754,6 +476,8 @@ def _scene_section(
         f'<h2 id="scene-{_esc(_slug(scene.id))}">Scene: {_esc(scene.id)}</h2>',
         f'<p class="small">{"; ".join(facts)}.</p>',
     ]
+    if scene.flag_reason:
+        parts.append(f'<div class="warn"><b>Flagged.</b> {_esc(scene.flag_reason)}</div>')
     if plots_ok:
         names = _scene_plots(result, scene, index, out)
         parts.append(
@@ -763,7 +487,7 @@ def _scene_section(
         )
     parts.append(_scene_table(result, scene))
     summary = f"<summary>Equal-time table of {_esc(scene.id)}</summary>"
-    parts.append(f"<details>{summary}{_equal_time_table(scene.equal_time)}</details>")
+    parts.append(f"<details>{summary}{equal_time_table(scene.equal_time)}</details>")
     parts.append(_all_metrics_table(result, scene))
     parts.append(f"<h3>Images at {result.strip_spp} spp</h3>")
     parts.append(_strip(result, scene, index, out))
@@ -845,32 +569,7 @@ def render_html(result: ExperimentResult, out_dir: str | os.PathLike[str]) -> st
     parts.append(_run_table(result))
     if result.notes:
         parts.append('<div class="warn">' + "<br>".join(_esc(n) for n in result.notes) + "</div>")
-    parts.append('<h2 id="overall">All scenes</h2>')
-    if reason is None:
-        names = _overall_plots(result, out)
-        parts.append(
-            '<div class="plots">'
-            + "".join(f"<figure>{_img(n, n)}</figure>" for n in names[:2])
-            + "</div>"
-        )
-    else:
-        names = []
-        parts.append(f'<p class="notes">No plots: {_esc(reason)}</p>')
-    parts.append(_overall_error_table(result))
-    parts.append('<h2 id="equal-time">Equal time: the best choice for a time budget</h2>')
-    parts.append(
-        '<p class="small">Over all scenes (mean total seconds, geometric mean relMSE). '
-        "Budgets: "
-        + ("as given by the spec" if result.spec.budgets else "log-spaced over the measured times")
-        + ".</p>"
-    )
-    parts.append(_equal_time_table(result.overall_equal_time))
-    parts.append('<h2 id="equal-quality">Equal quality: what plain rendering would need</h2>')
-    if names:
-        parts.append(f'<div class="plots"><figure>{_img(names[2], names[2])}</figure></div>')
-    parts.append(_overall_eq_table(result))
-    parts.append('<h2 id="statistics">Statistics over scenes</h2>')
-    parts.append(_stats_table(result))
+    parts += overall_sections(result, out, reason)
     for i, scene in enumerate(result.scenes):
         parts.append(_scene_section(result, scene, i, out, reason is None))
     parts.append(_provenance(result))

@@ -147,3 +147,16 @@ def test_noise_floor_predicts_the_error_of_a_noisy_reference():
 def test_limited_by_reference():
     assert limited_by_reference(0.019, 0.01) and not limited_by_reference(0.021, 0.01)
     assert not limited_by_reference(None, 0.01) and not limited_by_reference(0.001, None)
+
+
+def test_noisy_rises_find_the_firefly_jump_of_the_issue():
+    from mcdenoise.experiments.quality import noisy_rises
+
+    # caustics_glass in the demo: 177 -> 44.7 -> 119 relMSE from 1 to 4 spp, then falling
+    c = NoisyCurve((1, 2, 4, 8, 16), (177.0, 44.7, 119.0, 30.2, 22.1), (0.1, 0.2, 0.4, 0.8, 1.6))
+    assert noisy_rises(c) == [(2, 44.7, 4, 119.0)]
+    # a monotone curve, and a wiggle within 2x the reference's noise floor, are not flagged
+    assert noisy_rises(NoisyCurve((1, 2, 4), (0.8, 0.4, 0.2), (1.0, 2.0, 4.0))) == []
+    wiggle = NoisyCurve((1, 2, 4), (0.8, 0.010, 0.011), (1.0, 2.0, 4.0))
+    assert noisy_rises(wiggle, floor=0.006) == []
+    assert noisy_rises(wiggle, floor=0.001) == [(2, 0.010, 4, 0.011)]
