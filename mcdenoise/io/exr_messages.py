@@ -67,7 +67,7 @@ def _translate(code: str, msg: str) -> tuple[str, str] | None:
     """(what is wrong, kind) for a known OpenEXR message; kind is header/truncated/pixels."""
     if "End of file" in msg or (code == "EXR_ERR_READ_IO" and "Unable to read" in msg):
         return "the file ends inside its header (it is truncated)", "truncated"
-    if m := re.search(r"Attribute '([^']*)'.*Invalid (?:negative )?size", msg):
+    if m := re.search(r"[Aa]ttribute '([^']*)'.*Invalid (?:negative )?size", msg):
         return f"the header attribute '{m.group(1)}' has an impossible size", "header"
     if m := re.search(r"attribute '([^']*)': Invalid type '([^']*)'", msg):
         return f"the header attribute '{m.group(1)}' has the wrong type '{m.group(2)}'", "header"
@@ -130,7 +130,7 @@ def explain(text: str, path: str, reading: str) -> str:
         # The first cause is the root: later ones are OpenEXR retrying and failing again.
         what, kind = found[0]
         advice = {
-            "truncated": f"{REWRITE} (it was cut short)",
+            "truncated": REWRITE,
             "pixels": REWRITE,
             "header": f"the file is damaged: {REWRITE}",
         }[kind]

@@ -81,6 +81,12 @@ def test_empty_or_unknown_library_message_names_what_was_read():
     assert "cannot read the header (OpenEXR says: odd thing)" in msg
 
 
+def test_required_attribute_with_a_bad_size_is_named():
+    text = "EXR Error (f): EXR_ERR_ATTR_SIZE_MISMATCH Required attribute 'screenWindowWidth': "
+    msg = explain(text + "Invalid size 9 (exp 4)", "f", "the header")
+    assert "the header attribute 'screenWindowWidth' has an impossible size" in msg
+
+
 def test_repeated_openexr_causes_are_reduced_to_the_first():
     text = (
         "EXR Error (a.exr): EXR_ERR_READ_IO End of file attempting to read header "
@@ -89,7 +95,7 @@ def test_repeated_openexr_causes_are_reduced_to_the_first():
     )
     assert explain(text, "a.exr", "the header") == (
         "cannot read the header: the file ends inside its header (it is truncated); write or "
-        "copy the file again (it was cut short)"
+        "copy the file again"
     )
 
 
