@@ -61,6 +61,12 @@ from tqdm import tqdm
     type=click.Choice(["none", "zip", "zips", "piz", "rle", "pxr24", "b44", "dwaa"]),
 )
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON record per output.")
+@click.option(
+    "--progress/--no-progress",
+    default=True,
+    help="Progress on stderr with several outputs: a bar on a terminal, a few plain lines in "
+    "a log.",
+)
 def denoise(
     inputs,
     output,
@@ -75,6 +81,7 @@ def denoise(
     half,
     compression,
     as_json,
+    progress,
 ):
     """Denoise INPUTS (EXR files or folders of them) and write EXR outputs.
 
@@ -95,6 +102,7 @@ def denoise(
             device=device,
             read=read,
             write=write,
+            progress=progress,
         )
     except dn.OptionError as err:
         raise click.UsageError(str(err)) from None
