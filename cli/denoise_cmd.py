@@ -6,7 +6,7 @@ import json
 import sys
 
 import click
-from mcdenoise_cli.options import read_options
+from mcdenoise_cli.options import read_options, threads_option
 from tqdm import tqdm
 
 
@@ -51,6 +51,7 @@ from tqdm import tqdm
     show_default=True,
 )
 @read_options
+@threads_option()
 @click.option(
     "--half", is_flag=True, help="Write float16 (values beyond ±65504 are clamped and counted)."
 )

@@ -5,9 +5,11 @@ from __future__ import annotations
 import sys
 
 import click
+from mcdenoise_cli.options import threads_option
 
 
 @click.command("eval")
+@threads_option(expose=True)
 @click.argument("outputs", nargs=-1, type=click.Path())
 @click.option(
     "--ref",
@@ -63,7 +65,7 @@ import click
     help="Evaluate outputs whose recorded source shows another scene than the reference "
     "(a warning instead of an error).",
 )
-def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress, force):
+def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, progress, force):
     """Compare denoised OUTPUTS (files or folders) with a reference; write a report.
 
     An output made by `mcdenoise denoise` records its source; when the source shows another
@@ -84,7 +86,7 @@ def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress,
             raise click.UsageError("--experiment takes no OUTPUTS, --ref or --input")
         if force:
             raise click.UsageError("--force applies to --ref, not to --experiment")
-        _experiment(experiment, out_dir, names, mode)
+        _experiment(experiment, out_dir, names, mode, threads)
         return
     if reference is None:
         raise click.UsageError("Missing option '--ref' (or give --experiment SPEC).")
@@ -110,11 +112,21 @@ def eval_cmd(outputs, reference, inputs, out_dir, metrics, experiment, progress,
             click.echo(f"{kind}: {paths[kind]}")
 
 
-def _experiment(spec_path, out_dir, metrics, progress):
+def _experiment(spec_path, out_dir, metrics, progress, threads=None):
     from mcdenoise.experiments import load_experiment, run_experiment
 
     summary = run_experiment(
-        load_experiment(spec_path), out_dir, progress=progress, metrics=metrics
+        _with_threads(load_experiment(spec_path), threads),
+        out_dir,
+        progress=progress,
+        metrics=metrics,
     )
     for line, to_stderr in summary.messages():  # results on stdout, notes on stderr
         click.echo(line, err=to_stderr)
+
+
+def _with_threads(spec, threads):
+    """An explicit ``--threads N`` overrides the spec's ``threads``."""
+    import dataclasses
+
+    return spec if threads is None else dataclasses.replace(spec, threads=threads)

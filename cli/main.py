@@ -4,6 +4,11 @@ Each command parses its options and calls one library function. Errors caused by
 (:class:`mcdenoise.errors.McdenoiseError`, missing or unreadable files) are printed as one line
 ``mcdenoise: error: ...`` on stderr with exit code 1; usage errors exit with 2 (click's
 convention); Ctrl-C exits with 130. Set ``MCDENOISE_DEBUG=1`` to see tracebacks.
+
+Importing this module sets ``OMP_WAIT_POLICY=PASSIVE`` (unless the user set ``OMP_WAIT_POLICY``
+or ``GOMP_SPINCOUNT``) before anything imports torch, so idle OpenMP threads sleep instead of
+spinning against another busy process (:mod:`mcdenoise.threads`, ``docs/results/threads.md``).
+Warnings of the library (logger ``mcdenoise``) are printed as ``mcdenoise: warning: ...``.
 """
 
 from __future__ import annotations
@@ -11,9 +16,15 @@ from __future__ import annotations
 import os
 import sys
 
-import click
+from mcdenoise.threads import set_wait_policy
 
-from mcdenoise import __version__
+set_wait_policy()  # before torch (libgomp) starts: it reads the variable once, at start
+
+import logging  # noqa: E402
+
+import click  # noqa: E402
+
+from mcdenoise import __version__  # noqa: E402
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
@@ -51,6 +62,20 @@ class _Group(click.Group):
             ctx.exit(EXIT_ERROR)
 
 
+class _EchoHandler(logging.Handler):
+    """Writes each record as one line ``mcdenoise: warning: ...`` on click's stderr."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        click.echo(f"mcdenoise: {record.levelname.lower()}: {record.getMessage()}", err=True)
+
+
+def _log_to_stderr() -> None:
+    """Library log records of level WARNING and above -> one line each on stderr."""
+    logger = logging.getLogger("mcdenoise")
+    if not any(isinstance(h, _EchoHandler) for h in logger.handlers):
+        logger.addHandler(_EchoHandler(logging.WARNING))
+
+
 def _one_line(err: BaseException) -> str:
     from mcdenoise.errors import McdenoiseError
 
@@ -72,6 +97,7 @@ def main() -> None:
       mcdenoise denoise noisy.exr -o out.exr      best available method
       mcdenoise eval --ref ref.exr out.exr -o report/
     """
+    _log_to_stderr()
 
 
 def _register() -> None:

@@ -1,4 +1,4 @@
-"""Options shared by several commands (reading inputs)."""
+"""Options shared by several commands (reading inputs, threads)."""
 
 from __future__ import annotations
 
@@ -37,3 +37,51 @@ def read_options(f):
         help="Renderer channel naming; auto-detected by default.",
     )(f)
     return f
+
+
+class _Threads(click.ParamType):
+    name = "threads"
+
+    def convert(self, value, param, ctx):
+        if value is None or isinstance(value, int):
+            return value
+        text = str(value).strip().lower()
+        if text == "auto":
+            return None
+        if text.isdigit() and int(text) >= 1:
+            return int(text)
+        self.fail(f"{value!r} is not a positive whole number or 'auto'", param, ctx)
+
+
+def threads_option(*, render: bool = False, expose: bool = False):
+    """``--threads N|auto``: the CPU threads the command computes with, chosen and applied
+    (torch; with ``render`` also Mitsuba's Dr.Jit pool) as soon as the option is parsed.
+
+    The default ``auto`` (see :func:`mcdenoise.threads.choose_threads`) respects
+    ``OMP_NUM_THREADS``, else takes the physical cores not busy with other tasks at start, at
+    least one. With ``expose`` the command receives ``threads``: the explicit ``N``, or
+    ``None`` when none was given (so a spec or config file can keep its own value).
+    """
+
+    def apply(ctx: click.Context, param: click.Parameter, value: int | None) -> int | None:
+        from mcdenoise.threads import apply_threads, choose_threads, set_render_threads
+
+        choice = choose_threads(value)
+        apply_threads(choice)
+        if render:
+            set_render_threads(choice.threads)
+        ctx.meta["mcdenoise.threads"] = choice
+        return value
+
+    return click.option(
+        "--threads",
+        "threads",
+        type=_Threads(),
+        default=None,
+        metavar="N|auto",
+        expose_value=expose,
+        callback=apply,
+        help="CPU threads to compute with. Default auto: OMP_NUM_THREADS if set, else the "
+        "physical cores not busy with other processes at start (at least 1); idle OpenMP "
+        "threads sleep (OMP_WAIT_POLICY=PASSIVE unless set).",
+    )

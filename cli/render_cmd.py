@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from mcdenoise_cli.options import threads_option
 
 
 @click.command("render")
@@ -81,6 +82,7 @@ import click
     help="Afterwards also write every image in the layout of data/samples: DIR/<id>_spp<n>.exr "
     "per level (colour float32, features half) and DIR/ref/<id>.exr (colour only).",
 )
+@threads_option(render=True)
 @click.option(
     "--progress/--no-progress",
     default=None,

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import click
+from mcdenoise_cli.options import threads_option
 
 
 @click.command()
+@threads_option(expose=True)
 @click.option(
     "--model",
     "model",
@@ -66,7 +68,9 @@ import click
     is_flag=True,
     help="No progress (default: a bar on a terminal, a few plain lines in a log).",
 )
-def train(model, data, out, config_file, overrides, steps, resume, finetune_encoder, base, quiet):
+def train(
+    threads, model, data, out, config_file, overrides, steps, resume, finetune_encoder, base, quiet
+):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
     from mcdenoise.denoise import check_output_folder
     from mcdenoise.method import params_from_strings
@@ -79,7 +83,7 @@ def train(model, data, out, config_file, overrides, steps, resume, finetune_enco
         model=model,
         data=data,
         config_file=config_file,
-        overrides=params_from_strings(overrides, option="--set"),
+        overrides=_with_threads(params_from_strings(overrides, option="--set"), threads),
         steps=steps,
         resume=resume,
         finetune_encoder=finetune_encoder,
@@ -90,3 +94,10 @@ def train(model, data, out, config_file, overrides, steps, resume, finetune_enco
         return
     for line, to_stderr in outcome.messages():
         click.echo(line, err=to_stderr)
+
+
+def _with_threads(values, threads):
+    """An explicit ``--threads N`` is ``-s threads=N`` (an explicit ``-s threads`` wins)."""
+    if threads is not None:
+        values.setdefault("threads", str(threads))
+    return values

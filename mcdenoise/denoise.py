@@ -34,6 +34,7 @@ from mcdenoise.registry import (
     params_from_strings,
     register,
 )
+from mcdenoise.threads import check_speed, wait_policy
 
 __all__ = [
     "DenoiseJob",
@@ -140,6 +141,7 @@ class DenoiseResult:
             "mcdenoise:seconds": float(self.seconds),
             "mcdenoise:device": self.device,
             "mcdenoise:threads": int(torch.get_num_threads()),
+            "mcdenoise:omp_wait_policy": wait_policy(),  # as the environment asks
             "mcdenoise:version": __version__,
         }
 
@@ -256,6 +258,8 @@ def _run_sequence(
             if dev.type == "cuda":
                 torch.cuda.synchronize(dev)
             seconds = time.perf_counter() - start - (prep_seconds[0] - prep_before)
+            if index < len(shapes):  # far slower than recorded: say so, once per method
+                check_speed(m.name, seconds, shapes[index][0] * shapes[index][1], dev.type)
             if index >= len(shapes):
                 raise RuntimeError(f"method {m.name} returned more outputs than frames")
             out = out.detach().to("cpu", torch.float32)

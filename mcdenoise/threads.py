@@ -1,0 +1,260 @@
+"""How many CPU threads a command computes with, and a warning when a method runs far too slow.
+
+torch runs its CPU operators on an OpenMP thread pool (libgomp in the CPU wheels) with one
+thread per core by default, and libgomp's waiting threads *spin* at every barrier (for about
+300 000 iterations, ``GOMP_SPINCOUNT``; ``OMP_WAIT_POLICY``). When another process is busy on
+the same cores, a spinning thread burns the time slice the thread it waits for needs, and every
+parallel operator pays for it: on 2 shared cores with a 2-thread torch loop running beside it,
+``kalantari-xbf`` on a 128×128 sample took 82 s instead of 0.3 s (issue 20). Measured choices
+are in ``docs/results/threads.md``; what this module does about it:
+
+* :func:`set_wait_policy` makes idle OpenMP threads sleep instead of spin
+  (``OMP_WAIT_POLICY=PASSIVE``) unless the user chose a policy. It must run before libgomp
+  starts, i.e. before ``import torch`` in the process: the ``mcdenoise`` command calls it first
+  thing; library users set the variable themselves.
+* :func:`choose_threads` picks the thread count: an explicit request; else ``OMP_NUM_THREADS``
+  when set; else ``auto``: the physical cores this process may use minus the other tasks
+  running on them right now (``/proc/loadavg``), at least 1, so a busy machine gets one
+  thread and an idle one all its cores. :func:`apply_threads` sets it (``torch.set_num_threads``;
+  Mitsuba's Dr.Jit pool with :func:`set_render_threads`).
+* :func:`check_speed` compares a method's seconds with its recorded one-thread speed
+  (:data:`RECORDED_SPEED`) and logs one warning per method and process when a run is more than
+  :data:`SLOW_FACTOR` times slower, naming the likely cause.
+
+The thread count and the wait policy are recorded in every output's header
+(``mcdenoise:threads``, ``mcdenoise:omp_wait_policy``) and in experiment records (``threads``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping, MutableMapping
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = [
+    "RECORDED_SPEED",
+    "SLOW_FACTOR",
+    "ThreadChoice",
+    "apply_threads",
+    "auto_threads",
+    "check_speed",
+    "choose_threads",
+    "expected_seconds",
+    "other_running_tasks",
+    "physical_cores",
+    "set_render_threads",
+    "set_wait_policy",
+    "wait_policy",
+]
+
+log = logging.getLogger(__name__)
+
+#: How much slower than :data:`RECORDED_SPEED` a run may be before :func:`check_speed` warns.
+SLOW_FACTOR = 10.0
+#: Runs shorter than this never warn (start-up noise on tiny images is not worth a message).
+MIN_WARN_SECONDS = 1.0
+
+#: Each shipped method's speed on one thread, idle, as ``(fixed seconds, seconds per
+#: megapixel)``: the expected time of one frame of ``P`` megapixels is ``fixed + P * per_mp``.
+#: Measured by ``python benchmarks/bench_threads.py --calibrate`` (min of 3 fresh processes; the
+#: first frame, model loading included, as a command-line user waits for it: cornell_spp4
+#: 128×128, then tiled to 512×512) on 2 AMD EPYC cores, torch 2.13 CPU, on 2026-11-25 while
+#: other jobs kept the load average at 13–16: slower than idle, which only makes the warning
+#: more cautious (``docs/results/threads.md``).
+RECORDED_SPEED: Mapping[str, tuple[float, float]] = {
+    "nlm": (0.154, 28.7),
+    "cross-bilateral": (0.0785, 21.8),
+    "kalantari-xbf": (0.0, 46.9),
+    "kalantari-nlm": (0.13, 31.4),
+    "kpcn": (0.0718, 5.01),
+    "oidn": (0.427, 2.57),
+}
+
+_ENV_POLICY = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+
+
+def set_wait_policy(env: MutableMapping[str, str] | None = None) -> str:
+    """Set ``OMP_WAIT_POLICY=PASSIVE`` in ``env`` (default ``os.environ``) unless the user set
+    ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``; returns the policy in effect (:func:`wait_policy`).
+
+    Takes effect only if called before libgomp starts (before ``import torch``).
+    """
+    env = os.environ if env is None else env
+    if not any(env.get(k, "").strip() for k in _ENV_POLICY):
+        env["OMP_WAIT_POLICY"] = "PASSIVE"
+    return wait_policy(env)
+
+
+def wait_policy(env: Mapping[str, str] | None = None) -> str:
+    """The OpenMP wait policy the environment asks for: ``PASSIVE``, ``ACTIVE``,
+    ``GOMP_SPINCOUNT=N`` or ``default`` (libgomp spins a while, then sleeps)."""
+    env = os.environ if env is None else env
+    parts = []
+    policy = env.get("OMP_WAIT_POLICY", "").strip()
+    if policy:
+        parts.append(policy.upper())
+    spin = env.get("GOMP_SPINCOUNT", "").strip()
+    if spin:
+        parts.append(f"GOMP_SPINCOUNT={spin}")
+    return ", ".join(parts) or "default"
+
+
+def usable_cpus() -> int:
+    """Logical CPUs this process may run on (its affinity mask, e.g. under ``taskset``)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def physical_cores(cpuinfo: str | os.PathLike[str] = "/proc/cpuinfo") -> int:
+    """Physical cores among the CPUs this process may use (hyper-threads counted once);
+    the usable logical CPUs where ``/proc/cpuinfo`` says nothing about cores."""
+    usable = usable_cpus()
+    try:
+        text = Path(cpuinfo).read_text()
+    except OSError:
+        return usable
+    try:
+        allowed: set[int] | None = set(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        allowed = None
+    cores: set[tuple[str, str]] = set()
+    for block in text.split("\n\n"):
+        fields = dict(
+            (k.strip(), v.strip()) for k, _, v in (ln.partition(":") for ln in block.splitlines())
+        )
+        if "processor" not in fields or "core id" not in fields:
+            continue
+        if allowed is not None and int(fields["processor"]) not in allowed:
+            continue
+        cores.add((fields.get("physical id", "0"), fields["core id"]))
+    return min(usable, len(cores)) if cores else usable
+
+
+def other_running_tasks(
+    samples: int = 3, interval: float = 0.005, loadavg: str | os.PathLike[str] = "/proc/loadavg"
+) -> int | None:
+    """Tasks (threads) running or ready to run right now besides this one: the fourth field of
+    ``/proc/loadavg`` minus 1, the least of ``samples`` readings ``interval`` seconds apart (a
+    short-lived process does not count, a busy one does); ``None`` without ``/proc/loadavg``."""
+    import time
+
+    seen = []
+    for i in range(max(1, samples)):
+        if i:
+            time.sleep(interval)
+        try:
+            running = Path(loadavg).read_text().split()[3].split("/")[0]
+            seen.append(max(0, int(running) - 1))
+        except (OSError, IndexError, ValueError):
+            return None
+    return min(seen)
+
+
+def auto_threads() -> tuple[int, str]:
+    """``(threads, why)``: the physical cores not busy with other tasks right now, at least 1."""
+    cores = physical_cores()
+    others = other_running_tasks()
+    if others is None:
+        return cores, f"auto: {cores} physical core(s), load unknown"
+    free = max(1, min(cores, cores - others))
+    return free, f"auto: {free} of {cores} physical core(s) free ({others} other task(s) running)"
+
+
+@dataclass(frozen=True)
+class ThreadChoice:
+    """A thread count and how it was chosen (``--threads``, ``OMP_NUM_THREADS`` or ``auto``)."""
+
+    threads: int
+    source: str
+    wait_policy: str
+
+    def describe(self) -> str:
+        return f"{self.threads} thread(s) ({self.source}; OpenMP wait policy {self.wait_policy})"
+
+
+def choose_threads(
+    requested: int | None = None, env: Mapping[str, str] | None = None
+) -> ThreadChoice:
+    """The thread count to use: ``requested`` (``--threads N``) if given; else a valid
+    ``OMP_NUM_THREADS`` of the environment; else :func:`auto_threads`."""
+    env = os.environ if env is None else env
+    policy = wait_policy(env)
+    if requested is not None:
+        if requested < 1:
+            raise ValueError(f"threads must be >= 1, not {requested}")
+        return ThreadChoice(int(requested), "--threads", policy)
+    omp = env.get("OMP_NUM_THREADS", "").strip().split(",")[0]
+    if omp.isdigit() and int(omp) >= 1:
+        return ThreadChoice(int(omp), "OMP_NUM_THREADS", policy)
+    threads, why = auto_threads()
+    return ThreadChoice(threads, why, policy)
+
+
+def apply_threads(choice: ThreadChoice | int) -> int:
+    """Set torch's intra-op thread count (a global torch setting); returns it."""
+    import torch
+
+    n = choice.threads if isinstance(choice, ThreadChoice) else int(choice)
+    if torch.get_num_threads() != n:
+        torch.set_num_threads(n)
+    return torch.get_num_threads()
+
+
+def set_render_threads(threads: int) -> bool:
+    """Set the thread count of Mitsuba's CPU backend (Dr.Jit's pool; the calling thread counts
+    as one); ``False`` when Dr.Jit is not installed."""
+    try:
+        import drjit
+    except ImportError:
+        return False
+    drjit.set_thread_count(int(threads))
+    return True
+
+
+# --- a method far slower than its recorded speed ----------------------------------------------
+
+_warned: set[str] = set()  # methods already warned about in this process (one message each)
+
+
+def expected_seconds(method: str, pixels: int) -> float | None:
+    """The recorded one-thread idle seconds of ``method`` on a frame of ``pixels`` pixels;
+    ``None`` for a method without a record."""
+    speed = RECORDED_SPEED.get(method)
+    if speed is None:
+        return None
+    fixed, per_mp = speed
+    return fixed + per_mp * pixels / 1e6
+
+
+def check_speed(
+    method: str, seconds: float, pixels: int, device: str = "cpu", threads: int | None = None
+) -> str | None:
+    """Warn (logger ``mcdenoise.threads``, once per method and process) when ``method`` took
+    more than :data:`SLOW_FACTOR` times its recorded speed on the CPU; returns the message
+    when it warned."""
+    if device != "cpu" or method in _warned or seconds < MIN_WARN_SECONDS:
+        return None
+    expected = expected_seconds(method, pixels)
+    if expected is None or seconds <= SLOW_FACTOR * expected:
+        return None
+    if threads is None:
+        import torch
+
+        threads = torch.get_num_threads()
+    _warned.add(method)
+    hint = (
+        "try --threads 1 (or set OMP_NUM_THREADS=1)"
+        if threads > 1
+        else "it already runs on one thread; the machine is probably overloaded"
+    )
+    message = (
+        f"method {method} took {seconds:.2f} s, {seconds / expected:.0f}x its recorded speed "
+        f"({expected:.2f} s for {pixels / 1e6:.3g} megapixels on one idle thread): another "
+        f"process is probably busy on the cores ({threads} torch thread(s) here); {hint}"
+    )
+    log.warning(message)
+    return message
