@@ -18,6 +18,9 @@ part of tqdm's interface the library uses (``update``, ``set_postfix_str``, ``se
 
 from __future__ import annotations
 
+import io
+import os
+import shutil
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -202,6 +205,8 @@ def progress_bar(
         return LineProgress(iterable, total=total, desc=desc, unit=unit, initial=initial)
     from tqdm import tqdm
 
+    stream = _stream()
+    size = _zero_size_fallback(stream)
     return tqdm(
         iterable,
         total=total,
@@ -209,10 +214,26 @@ def progress_bar(
         unit=unit,
         initial=initial,
         leave=leave,
-        file=_stream(),
+        file=stream,
         disable=mode == "off",
-        dynamic_ncols=True,
+        ncols=size[0],
+        nrows=size[1],
+        dynamic_ncols=size[0] is None,
     )
+
+
+def _zero_size_fallback(stream: IO[str]) -> tuple[int | None, int | None]:
+    """``(columns, rows)`` for a terminal that reports a size of 0 (a pty without a size, e.g.
+    under ``script`` or some CI runners), where tqdm would draw nothing; else ``(None, None)``
+    (tqdm asks the terminal itself)."""
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+        return None, None
+    if size.columns > 0 and size.lines > 0:
+        return None, None
+    fallback = shutil.get_terminal_size((100, 24))
+    return (size.columns or fallback.columns or 100), (size.lines or fallback.lines or 24)
 
 
 def write_line(text: str) -> None:

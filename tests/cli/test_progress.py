@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import io
+import os
 import re
 import sys
 from pathlib import Path
@@ -78,6 +79,20 @@ def test_a_bar_on_a_terminal_and_nothing_when_off(monkeypatch) -> None:
     for _ in progress.progress_bar(range(3), desc="train", progress=False):
         pass
     assert quiet.getvalue() == ""
+
+
+def test_a_terminal_without_a_size_still_gets_a_bar(monkeypatch) -> None:
+    """A fresh pty reports 0 x 0 (``script``, some CI runners): tqdm alone draws nothing."""
+    master, slave = os.openpty()
+    with os.fdopen(slave, "w", encoding="utf-8") as term:
+        assert os.get_terminal_size(term.fileno()).lines == 0
+        monkeypatch.setattr(progress, "_stream", lambda: term)
+        for _ in progress.progress_bar(range(2), desc="render", unit="image"):
+            pass
+        term.flush()
+        drawn = os.read(master, 65536).decode("utf-8", "replace")
+    os.close(master)
+    assert "render: 100%" in drawn and "2/2" in drawn
 
 
 def test_a_resumed_stage_says_what_is_left(monkeypatch) -> None:
