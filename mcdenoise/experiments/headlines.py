@@ -107,7 +107,7 @@ def _versus(
             return None
         tied = row.ci_low <= 1.0 <= row.ci_high
         text = _ratio_text(method, result.baseline, row.ratio, row.ci_low, row.ci_high, conf)
-        return text + " (statistics table)", tied
+        return text + ", as in the statistics table", tied
     got = paired_ratio(
         errors_by_key(result.records),
         view.scenes,

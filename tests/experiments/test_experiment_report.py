@@ -268,7 +268,7 @@ def test_headline_calls_an_interval_containing_1_a_tie_not_a_win(small_result):
     assert "<b>tied within the interval</b> (no clear difference) with soft" in first
     # the numbers quoted are the statistics table's
     assert f"box ÷ soft {row.ratio:.3g}" in first
-    assert f"interval {row.ci_low:.3g}\u2013{row.ci_high:.3g} (statistics table)" in first
+    assert f"interval {row.ci_low:.3g}\u2013{row.ci_high:.3g}, as in the statistics table" in first
     assert "No single method is lowest at 2 spp" in first
 
 
