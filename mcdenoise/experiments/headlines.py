@@ -211,11 +211,22 @@ def _speedup(view: OverallView) -> str | None:
     )
 
 
+def _worst(result: ExperimentResult, over: Sequence[tuple[float, Mapping[str, Any]]]) -> str:
+    """The largest |bias| of ``over`` as text, with the noisy input's bias at the same place."""
+    b, r = max(over, key=lambda t: abs(t[0]))
+    noisy = result.record(r["scene"], r["spp"], NOISY)
+    nb = bias_of(noisy) if noisy else None
+    ref = f"; the noisy input there {pct(nb)}" if nb is not None else ""
+    return f"{pct(b)} ({_esc(r['scene'])}, {r['spp']} spp{ref})"
+
+
 def bias_lines(result: ExperimentResult) -> list[str]:
     """Methods whose |mean bias| exceeds :data:`BIAS_LIMIT` somewhere (worst case, with the
-    noisy input's bias there), or one line saying none does."""
+    noisy input's bias there, and the worst outside flagged scenes), or one line saying none
+    does."""
     if "bias" not in result.metrics:
         return []
+    flagged = set(result.flagged)
     found = []
     for label in result.labels:
         if label == NOISY:
@@ -226,14 +237,15 @@ def bias_lines(result: ExperimentResult) -> list[str]:
         over = [(b, r) for b, r in mine if abs(b) > BIAS_LIMIT]
         if not over:
             continue
-        b, r = max(over, key=lambda t: abs(t[0]))
-        noisy = result.record(r["scene"], r["spp"], NOISY)
-        nb = bias_of(noisy) if noisy else None
-        ref = f"; the noisy input there {pct(nb)}" if nb is not None else ""
-        found.append(
-            f"<b>{_esc(label)}</b> in {len(over)} of {len(mine)} results, worst {pct(b)} "
-            f"({_esc(r['scene'])}, {r['spp']} spp{ref})"
-        )
+        text = f"<b>{_esc(label)}</b> in {len(over)} of {len(mine)} results, worst {_worst(result, over)}"
+        if flagged and any(r["scene"] in flagged for _, r in over):
+            calm = [(b, r) for b, r in over if r["scene"] not in flagged]
+            text += (
+                f", outside flagged scenes {_worst(result, calm)}"
+                if calm
+                else f", within ±{BIAS_LIMIT:.0%} outside flagged scenes"
+            )
+        found.append(text)
     limit = f"{BIAS_LIMIT:.0%}"
     if not found:
         return [
