@@ -39,7 +39,7 @@ DEFAULT_MAX_READ_BYTES = 2**30
 #: Largest ratio of uncompressed to compressed bytes of each compression (with margin).
 MAX_RATIO = {
     "none": 1.0,
-    "rle": 64.0,
+    "rle": 70.0,  # runs of at most 128 bytes in 2: 64
     "zips": 1100.0,
     "zip": 1100.0,
     "pxr24": 1500.0,
