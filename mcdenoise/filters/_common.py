@@ -96,6 +96,13 @@ def check_variance(var: object, ref: Tensor, name: str) -> Tensor | None:
     return v.to(ref.dtype)
 
 
+def check_var_cap(value: object, name: str = "var_cap") -> float:
+    """κ >= 1 of the capped variance pair ``min(κ v_i, v_j)`` (``inf`` allowed: the sum)."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 1:
+        raise InputError(f"{name} must be a number >= 1, got {value!r}")
+    return float(value)
+
+
 def check_param(value: object, name: str, ref: Tensor, *, allow_zero: bool = False) -> Param:
     """A bandwidth given as a float (must be > 0) or a tensor (0-d, ``(B,1,1,1)`` or ``(B,1,H,W)``).
 

@@ -9,15 +9,19 @@ For each pixel ``i`` over a ``k × k`` window of in-image neighbours ``j``::
 
 with the distances
 
-    D(c_i, c_j)   = mean_ch (c_i - c_j)² / (ε + v_i + min(v_i, v_j))   (v: variance of the mean)
+    D(c_i, c_j)   = mean_ch (c_i - c_j)² / (ε + v_i + min(κ v_i, v_j))   (v: variance of the mean)
     D_k(f_i, f_j) = mean_ch (f_i - f_j)² / max(δ_k, ψ²_k,i [, |∇f_k,i|²])
 
 The colour distance is normalised by the variance as in Rousselle et al. 2012 (two noisy samples
-of the same value have ``E[D] ≈ 1``, so β is in units of noise), with ``min(v_i, v_j)`` in place
-of ``v_j`` by default (``var_pair="sum"`` gives ``v_i + v_j``): a much noisier neighbour, such
-as the anti-aliased edge of a visible light, must not look similar to a dark clean centre. On
-renders with a visible light source this is the difference between a 4x improvement and a
-100x degradation in relMSE. Without a variance it is the raw mean squared difference (β in
+of the same value have ``E[D] ≈ 1``, so β is in units of noise), with ``min(κ v_i, v_j)`` in
+place of ``v_j`` by default (``var_pair="sum"`` gives ``v_i + v_j``): a much noisier neighbour,
+such as the anti-aliased edge of a visible light, must not look similar to a dark clean centre.
+On renders with a visible light source this is the difference between a 4x improvement and a
+100x degradation in relMSE. The cap is asymmetric, and that costs energy: a pixel that drew a
+bright sample (high value, high variance estimate) accepts its darker neighbours while they
+refuse it, so its excess is lost and the image darkens (``docs/results/bias.md``); the cap
+``κ = var_cap`` (default 1, the plain minimum) lets a neighbour up to κ times noisier than
+the centre count with its own noise. Without a variance it is the raw mean squared difference (β in
 colour units). A feature distance is divided by the feature's
 variance at the centre pixel (Kalantari 2015), floored at δ_k so that noise-free features do
 not blow up, and optionally by its squared gradient (Rousselle et al. 2013), so that smoothly
@@ -45,6 +49,7 @@ from mcdenoise.filters._common import (
     check_kernel_size,
     check_param,
     check_same_size,
+    check_var_cap,
     check_variance,
     feature_normalizer,
     inv_two_sq,
@@ -70,6 +75,7 @@ def cross_bilateral(
     sigma_features: Param | list[Param] | dict[str, Param] = 1.0,
     color_var: Tensor | None = None,
     var_pair: Literal["min", "sum"] = "min",
+    var_cap: float = 1.0,
     feature_vars: list[Tensor | None] | dict[str, Tensor | None] | None = None,
     feature_floor: float | list[float] | dict[str, float] = FEATURE_FLOOR,
     feature_gradient: bool = False,
@@ -95,6 +101,9 @@ def cross_bilateral(
             ``"sum"``: ``ε + v_i + v_j``. With ``"sum"`` a neighbour much noisier than the
             centre (the anti-aliased edge of a visible light) looks "similar" to a dark, clean
             centre and bleeds into it; ``"min"`` trusts it only up to the centre's own noise.
+        var_cap: κ >= 1 of ``"min"``: ``D = mean_ch Δ² / (ε + v_i + min(κ v_i, v_j))`` (a
+            neighbour counts with its own variance up to κ times the centre's); 1 is the plain
+            minimum, ``inf`` gives ``"sum"``. Ignored with ``"sum"``.
         feature_vars: per-feature variance of the mean ``(B, 1 or C_k, H, W)`` or ``None``.
         feature_floor: δ_k, the floor of each feature normaliser (used when a variance or
             ``feature_gradient`` is present).
@@ -123,6 +132,8 @@ def cross_bilateral(
     if var_pair not in ("min", "sum"):
         raise InputError(f"var_pair must be 'min' or 'sum', got {var_pair!r}")
     pair_min = var_pair == "min"
+    var_cap = check_var_cap(var_cap)
+    pair_min = pair_min and var_cap != float("inf")  # min(∞ · v_i, v_j) is v_j (0 · ∞ is NaN)
     if not color_eps > 0:
         raise InputError(f"color_eps must be > 0, got {color_eps!r}")
     alpha = check_param(sigma_spatial, "sigma_spatial", color)
@@ -197,7 +208,10 @@ def cross_bilateral(
         e = (d.square_() if inplace else d.square()).sum(dim=1, keepdim=True)  # (B,1,h,w)
         if den_i is not None and vmean is not None:
             vj = win.neighbour(vmean)
-            den = win.centre(den_i) + (torch.minimum(win.centre(vmean), vj) if pair_min else vj)
+            if pair_min:
+                vc = win.centre(vmean)
+                vj = torch.minimum(vc if var_cap == 1 else vc * var_cap, vj)
+            den = win.centre(den_i) + vj
             e = e.div_(den) if inplace else e / den
         c_i = win.param(col)
         e = e.mul_(c_i) if inplace else e * c_i
@@ -236,6 +250,7 @@ class CrossBilateral(nn.Module):
         sigma_features: float | list[float] | dict[str, float] = 1.0,
         *,
         var_pair: Literal["min", "sum"] = "min",
+        var_cap: float = 1.0,
         feature_floor: float | list[float] | dict[str, float] = FEATURE_FLOOR,
         feature_gradient: bool = False,
         color_eps: float = COLOR_EPS,
@@ -247,6 +262,7 @@ class CrossBilateral(nn.Module):
         self.sigma_color = sigma_color
         self.sigma_features = sigma_features
         self.var_pair = var_pair
+        self.var_cap = var_cap
         self.feature_floor = feature_floor
         self.feature_gradient = feature_gradient
         self.color_eps = color_eps
@@ -274,6 +290,7 @@ class CrossBilateral(nn.Module):
             sigma_features=self.sigma_features if sigma_features is None else sigma_features,
             color_var=color_var,
             var_pair=self.var_pair,
+            var_cap=self.var_cap,
             feature_vars=feature_vars,
             feature_floor=self.feature_floor,
             feature_gradient=self.feature_gradient,

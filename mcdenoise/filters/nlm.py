@@ -19,8 +19,12 @@ Without a variance (``color_var=None``) the classic normalisation is used:
 a colour-only image, estimate a variance (the preparation layer, ``prep/inputs.py``, does) and use the
 variance form.
 
-``var_pair="min"`` replaces ``v_{j+p}`` by ``min(v_{i+p}, v_{j+p})`` in the denominator, which
-keeps a much noisier neighbour (the edge of a visible light) out of a clean dark patch.
+``var_pair="min"`` replaces ``v_{j+p}`` by ``min(κ v_{i+p}, v_{j+p})`` in the denominator (κ =
+``var_cap``, default 1), which keeps a much noisier neighbour (the edge of a visible light) out
+of a clean dark patch. With κ = 1 it costs energy: a patch that drew bright samples (high
+values, high variance estimates) accepts darker patches while they refuse it, so the image
+darkens (``docs/results/bias.md``); κ > 1 lets a neighbour up to κ times noisier than the
+centre count with its own noise.
 
 Cost: per offset, the squared-difference map is computed once (channels reduced first) and
 box-filtered with separable cumulative sums, so the cost per offset does not grow with the
@@ -56,6 +60,7 @@ from mcdenoise.filters._common import (
     check_param,
     check_radius,
     check_same_size,
+    check_var_cap,
     check_variance,
     feature_normalizer,
     named_features,
@@ -79,6 +84,7 @@ def non_local_means(
     alpha: float = 4.0,
     color_var: Tensor | None = None,
     var_pair: Literal["sum", "min"] = "sum",
+    var_cap: float = 1.0,
     h: Param | None = None,
     guide: Tensor | None = None,
     features: Features | None = None,
@@ -106,6 +112,8 @@ def non_local_means(
             much noisier neighbour (the anti-aliased edge of a visible light source) look
             similar to a dark, clean centre -- on renders with visible lights it is far more
             robust (the ``nlm`` method uses it by default).
+        var_cap: κ >= 1 of ``"min"``: the denominator is ``ε + v_i + min(κ v_i, v_j)``; 1 is
+            the plain minimum, ``inf`` gives ``"sum"``. Ignored with ``"sum"``.
         h: bandwidth of the classic distance (colour units), float or per-pixel tensor; only
             without ``color_var``.
         guide: ``(B, C_g, H, W)`` image whose patches are compared (default: ``color``), e.g. a
@@ -150,6 +158,8 @@ def non_local_means(
     if var_pair not in ("sum", "min"):
         raise InputError(f"var_pair must be 'sum' or 'min', got {var_pair!r}")
     pair_min = var_pair == "min"
+    var_cap = check_var_cap(var_cap)
+    pair_min = pair_min and var_cap != float("inf")  # min(∞ · v_i, v_j) is v_j (0 · ∞ is NaN)
     if combine not in ("min", "product"):
         raise InputError(f"combine must be 'min' or 'product', got {combine!r}")
     bw = check_param(k if var is not None else h, "k" if var is not None else "h", color)
@@ -198,7 +208,9 @@ def non_local_means(
             vi = vmean[:, :, py0:py1, px0:px1]
             vj = vmean[:, :, py0 + dy : py1 + dy, px0 + dx : px1 + dx]
             vmin = torch.minimum(vi, vj)
-            den = vden[:, :, py0:py1, px0:px1] + (vmin if pair_min else vj)
+            if pair_min and var_cap != 1:
+                vj = torch.minimum(vi * var_cap, vj)
+            den = vden[:, :, py0:py1, px0:px1] + (vmin if pair_min and var_cap == 1 else vj)
             # C · (mean Δ² - α (v_i + min)) / (ε + v_i + (min or v_j))
             if inplace:
                 t.add_(vmin.add_(vi), alpha=-a * n_ch).div_(den)
@@ -347,6 +359,7 @@ class NonLocalMeans(nn.Module):
         *,
         h: float | None = None,
         var_pair: Literal["sum", "min"] = "sum",
+        var_cap: float = 1.0,
         feature_k: float | list[float] | dict[str, float] = 1.0,
         feature_floor: float | list[float] | dict[str, float] = 1e-3,
         feature_gradient: bool = True,
@@ -361,6 +374,7 @@ class NonLocalMeans(nn.Module):
         self.alpha = alpha
         self.h = h
         self.var_pair = var_pair
+        self.var_cap = var_cap
         self.feature_k = feature_k
         self.feature_floor = feature_floor
         self.feature_gradient = feature_gradient
@@ -389,6 +403,7 @@ class NonLocalMeans(nn.Module):
             alpha=self.alpha,
             color_var=color_var,
             var_pair=self.var_pair,
+            var_cap=self.var_cap,
             h=(self.h if h is None else h) if color_var is None else None,
             guide=guide,
             features=features,

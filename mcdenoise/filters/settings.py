@@ -32,7 +32,9 @@ class XbfSettings:
     ``sigma_color`` is in noise units (the colour distance is variance-normalised). With
     ``passes=2`` a second pass recomputes the colour distances on the first pass's result
     (a far less noisy guide), with bandwidth ``sigma_color_refine``; it costs twice the
-    filtering time. ``sigma_<feature>`` are feature bandwidths (see the module docstring).
+    filtering time. ``var_cap`` is κ of the colour distance's variance pair ``min(κ v_i, v_j)``
+    (1: the plain minimum; the bias it costs is in ``docs/results/bias.md``).
+    ``sigma_<feature>`` are feature bandwidths (see the module docstring).
     Where a feature variance is present, ``sigma_<feature>²`` becomes the floor of the
     variance normaliser (Kalantari 2015) and ``feature_scale`` the normalised bandwidth, so a
     noisy feature is trusted less and a clean one exactly as without variance.
@@ -50,6 +52,7 @@ class XbfSettings:
     feature_scale: float = 1.0
     feature_gradient: bool = False
     var_pair: str = "min"
+    var_cap: float = 1.0
     demodulate: bool = True
     albedo_eps: float = 1e-2
     prefilter: bool = True
@@ -62,7 +65,10 @@ class NlmSettings:
 
     ``k``, ``alpha``, ``search_radius``, ``patch_radius``, ``var_pair`` as in
     :func:`~mcdenoise.filters.nlm.non_local_means` (3×3 patches and α = 2, where Rousselle
-    uses 7×7 and α = 4, because the variance estimates of a 16 spp render are noisy). Feature
+    uses 7×7 and α = 4, because the variance estimates of a 16 spp render are noisy), and
+    ``var_cap`` 16: with the plain minimum (1) the filter darkened the 4 spp samples by up to
+    2.8 % (``docs/results/bias.md``). The learned ``kalantari-nlm`` filter does not read
+    ``var_cap``: it was trained with the plain minimum. Feature
     terms (Rousselle 2013) use ``sigma_<feature>²`` as the floor of their normaliser
     ``max(τ, var, |∇f|²)`` and ``feature_scale`` as ``k_f``.
     """
@@ -72,6 +78,7 @@ class NlmSettings:
     k: float = 0.45
     alpha: float = 2.0
     var_pair: str = "min"
+    var_cap: float = 16.0
     sigma_albedo: float = 0.1
     sigma_normal: float = 0.3
     sigma_depth: float = 0.02

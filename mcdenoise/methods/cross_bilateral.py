@@ -57,6 +57,7 @@ def denoise_xbf(buffers: FeatureBuffers, **overrides: object) -> Tensor:
         "sigma_features": sig,
         "color_var": var,
         "var_pair": s.var_pair,
+        "var_cap": s.var_cap,
         "feature_vars": fvars,
         "feature_floor": floors,
         "feature_gradient": s.feature_gradient,

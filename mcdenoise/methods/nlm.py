@@ -48,6 +48,7 @@ def denoise_nlm(buffers: FeatureBuffers, **overrides: object) -> Tensor:
             alpha=s.alpha,
             color_var=var,
             var_pair=s.var_pair,  # type: ignore[arg-type]
+            var_cap=s.var_cap,
             features=inp.features or None,
             feature_k=sig,
             feature_vars=fvars,

@@ -28,6 +28,7 @@ def naive_nlm(
     alpha=0.0,
     h=None,
     pair="sum",
+    cap=1.0,
     eps=1e-10,
     feats=(),
     fks=(),
@@ -61,7 +62,7 @@ def naive_nlm(
                                     vi, vj = float(vm[b, a0, a1]), float(vm[b, b0, b1])
                                     vmin = min(vi, vj)
                                     d2 = (d2 - alpha * (vi + vmin)) / (
-                                        eps + vi + (vmin if pair == "min" else vj)
+                                        eps + vi + (min(cap * vi, vj) if pair == "min" else vj)
                                     )
                                 s += d2
                                 n += 1
@@ -100,6 +101,20 @@ def test_box_filter_equals_naive_patch_loop(pair: str, r: int, f: int, tile: int
     )
     ref = naive_nlm(c, r, f, var=var, k=0.5, alpha=1.0, pair=pair)
     torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-12)
+
+
+def test_var_cap_matches_naive_loop_and_inf_is_the_sum() -> None:
+    c = rand(1, 3, 8, 7, seed=31)
+    var = rand(1, 3, 8, 7, seed=32, hi=0.05)
+    var[..., 2, 3] = 0.0  # a noise-free pixel: min(∞ · 0, v_j) must not be NaN
+    kw = dict(search_radius=2, patch_radius=1, k=0.5, alpha=1.0, color_var=var, var_pair="min")
+    out = non_local_means(c, var_cap=3.0, tile=3, **kw)
+    ref = naive_nlm(c, 2, 1, var=var, k=0.5, alpha=1.0, pair="min", cap=3.0)
+    torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-12)
+    assert not torch.allclose(out, non_local_means(c, **kw))
+    kw["var_pair"] = "sum"
+    inf = non_local_means(c, var_cap=math.inf, **{**kw, "var_pair": "min"})
+    torch.testing.assert_close(inf, non_local_means(c, **kw), rtol=1e-12, atol=0.0)
 
 
 def test_per_pixel_k_and_patch_larger_than_image() -> None:
@@ -349,6 +364,7 @@ V = torch.rand(1, 1, 6, 6)
         (dict(color_var=V, alpha=-1.0), "alpha"),
         (dict(color_var=V, combine="max"), "combine"),
         (dict(color_var=V, var_pair="avg"), "var_pair"),
+        (dict(color_var=V, var_cap=0.0), "var_cap must be a number >= 1"),
         (dict(color_var=torch.rand(1, 1, 5, 6)), "must match"),
         (dict(h=0.1, k=torch.rand(1, 1, 6, 6)), None),  # k is ignored in the h form
         (dict(color_var=V, k=torch.rand(1, 2, 6, 6)), "k must be"),
@@ -374,3 +390,37 @@ def test_cuda_matches_cpu(scene) -> None:
     gpu = non_local_means(x.cuda(), search_radius=4, patch_radius=2, color_var=v.cuda(), tile=16)
     assert gpu.device.type == "cuda"
     torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-5)
+
+
+def lognormal_constant(seed: int = 0):
+    """A constant grey seen through 4 lognormal samples per pixel: ``(colour of the mean, its
+    variance (1, 1, H, W), true value)``. Skewed like Monte Carlo noise: a pixel that drew a
+    bright sample is both brighter and has a larger variance estimate."""
+    g = torch.Generator().manual_seed(seed)
+    s = torch.exp(torch.randn(4, 1, 1, 32, 32, generator=g, dtype=torch.float64))
+    s = s.expand(4, 1, 3, 32, 32)
+    return s.mean(0), s.var(0).mean(1, keepdim=True) / 4, math.exp(0.5)
+
+
+def test_var_cap_loses_less_energy_of_skewed_noise() -> None:
+    # As for the cross-bilateral filter (measured: -15.3 % with cap 1, -10.0 % with cap 16,
+    # the noisy input -2.3 %).
+    c, v, true = lognormal_constant()
+    out = {
+        cap: non_local_means(
+            c,
+            search_radius=3,
+            patch_radius=1,
+            k=0.45,
+            alpha=2.0,
+            color_var=v,
+            var_pair="min",
+            var_cap=cap,
+        )
+        for cap in (1.0, 16.0)
+    }
+    bias = {cap: float(o.mean()) / true - 1 for cap, o in out.items()}
+    mse = {cap: float((o - true).square().mean()) for cap, o in out.items()}
+    assert bias[1.0] < -0.10
+    assert bias[16.0] > bias[1.0] + 0.04
+    assert mse[16.0] < mse[1.0]
