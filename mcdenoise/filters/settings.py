@@ -65,10 +65,11 @@ class NlmSettings:
 
     ``k``, ``alpha``, ``search_radius``, ``patch_radius``, ``var_pair`` as in
     :func:`~mcdenoise.filters.nlm.non_local_means` (3×3 patches and α = 2, where Rousselle
-    uses 7×7 and α = 4, because the variance estimates of a 16 spp render are noisy), and
-    ``var_cap`` 16: with the plain minimum (1) the filter darkened the 4 spp samples by up to
-    2.8 % (``docs/results/bias.md``). The learned ``kalantari-nlm`` filter does not read
-    ``var_cap``: it was trained with the plain minimum. Feature
+    uses 7×7 and α = 4, because the variance estimates of a 16 spp render are noisy).
+    ``var_cap`` is κ of the variance pair ``min(κ v_i, v_j)``: 1 here, the value the learned
+    ``kalantari-nlm`` filter was trained with and reproduces; the ``nlm`` method runs with
+    :data:`~mcdenoise.methods.nlm.VAR_CAP` (16), since with 1 it darkened the 4 spp samples
+    by up to 2.8 % (``docs/results/bias.md``). Feature
     terms (Rousselle 2013) use ``sigma_<feature>²`` as the floor of their normaliser
     ``max(τ, var, |∇f|²)`` and ``feature_scale`` as ``k_f``.
     """
@@ -78,7 +79,7 @@ class NlmSettings:
     k: float = 0.45
     alpha: float = 2.0
     var_pair: str = "min"
-    var_cap: float = 16.0
+    var_cap: float = 1.0
     sigma_albedo: float = 0.1
     sigma_normal: float = 0.3
     sigma_depth: float = 0.02

@@ -21,11 +21,20 @@ from mcdenoise.method import Method, dataclass_defaults
 from mcdenoise.methods.cross_bilateral import GUIDE_VARS, remodulate
 from mcdenoise.prep.inputs import demodulate_inputs, guide_args, prepare_inputs
 
+#: κ of the variance pair ``min(κ v_i, v_j)`` the ``nlm`` method runs with (``-p var_cap``).
+#: With the plain minimum (1, :class:`NlmSettings`' value, which the learned ``kalantari-nlm``
+#: was trained with) a pixel that drew a bright sample takes in its darker neighbours while
+#: they refuse it, and the image darkens: by 2.8 % on ``cornell_spp4``, 1.13 % with 16, at a
+#: lower relMSE (``docs/results/bias.md``).
+VAR_CAP = 16.0
+
 
 def denoise_nlm(buffers: FeatureBuffers, **overrides: object) -> Tensor:
     """Denoise with variance-normalised NLM; returns the ``(3, H, W)`` float32 colour.
 
-    Keyword overrides replace fields of :class:`NlmSettings`. Without a variance buffer the
+    Keyword overrides replace fields of :class:`NlmSettings` (as a library function its
+    ``var_cap`` is NlmSettings' 1, the fixed filter a learned model starts from; the registered
+    ``nlm`` method passes :data:`VAR_CAP`). Without a variance buffer the
     variance is estimated from the colour (:func:`~mcdenoise.prep.inputs.estimate_variance`);
     guide features, when present, add Rousselle 2013 feature weights (``features=()`` turns
     them off).
@@ -68,9 +77,9 @@ METHOD = Method(
     summary="non-local means, variance-normalised patches + feature weights (Rousselle 2012/13)",
     requires=("color",),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
-    defaults=dataclass_defaults(NlmSettings),
+    defaults={**dataclass_defaults(NlmSettings), "var_cap": VAR_CAP},
     run=_run,
     priority=20,
 )
 
-__all__ = ["METHOD", "denoise_nlm"]
+__all__ = ["METHOD", "VAR_CAP", "denoise_nlm"]
