@@ -10,7 +10,9 @@ once idle and once while a background process runs a 2-thread torch matmul loop
 load), and prints both, their ratio, and the same for the method's own seconds (the ``seconds``
 of the ``--json`` record, i.e. without Python start-up, imports and file I/O). Idle and loaded
 runs alternate per method and repetition, and each cell is the median of ``--repeats``, because
-the machines this runs on are shared and noisy. Target (issue 20): whole-process ratio <= 3×
+the machines this runs on are shared and noisy. The first row, ``(start-up only)``, times a
+process that only imports (Python, torch, mcdenoise) the same way: the slow-down the load
+causes to work that has no threads at all, the floor under every method's ratio. Target (issue 20): whole-process ratio <= 3×
 for every method with the default settings.
 
     python benchmarks/bench_threads.py [--repeats 3] [--methods nlm,kpcn]
@@ -25,6 +27,8 @@ process per method and repetition, the first frame (128×128 sample, model loadi
 a command-line user waits for it) and then the sample tiled 4×4 (512×512); ``per_mp`` is the
 slope between the two, ``fixed`` the first frame's time minus its pixels' share. Prints the
 minimum over ``--repeats`` (the least disturbed run on a shared machine) as a Python mapping.
+``--waits`` times that 512×512 frame idle with 1 thread and with 2 threads under three OpenMP
+wait policies (libgomp's default spin, ``GOMP_SPINCOUNT=10000``, ``PASSIVE``).
 """
 
 from __future__ import annotations
@@ -101,6 +105,42 @@ def calibrate(methods: list[str], repeats: int) -> None:
     print(f"# load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
+WAITS = {
+    "1 thread": {"OMP_NUM_THREADS": "1"},
+    "2 threads, libgomp default spin": {"OMP_NUM_THREADS": "2"},
+    "2 threads, GOMP_SPINCOUNT=10000 (the command's)": {
+        "OMP_NUM_THREADS": "2",
+        "GOMP_SPINCOUNT": "10000",
+    },
+    "2 threads, OMP_WAIT_POLICY=PASSIVE": {"OMP_NUM_THREADS": "2", "OMP_WAIT_POLICY": "PASSIVE"},
+}
+
+
+def compare_waits(methods: list[str], repeats: int) -> None:
+    """Idle seconds of the 512×512 (tiled sample) frame per thread count and wait policy."""
+    base = {k: v for k, v in os.environ.items() if not k.startswith(("OMP_", "GOMP_"))}
+    print(f"# idle, {SAMPLE.name} tiled to 512x512, min of {repeats} fresh processes")
+    print(f"# load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    for m in methods:
+        for name, env in WAITS.items():
+            best = min(
+                json.loads(
+                    subprocess.run(
+                        [sys.executable, "-c", CALIBRATE, m, str(SAMPLE)],
+                        capture_output=True,
+                        text=True,
+                        env={**base, **env},
+                        check=True,
+                    )
+                    .stdout.strip()
+                    .splitlines()[-1]
+                )["tiled"]
+                for _ in range(repeats)
+            )
+            print(f"{m:<16} {name:<48} {best:>7.3f} s", flush=True)
+    print(f"# load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
 def mcdenoise_cmd() -> list[str]:
     """The installed ``mcdenoise`` next to this Python, else ``python -m mcdenoise_cli.main``."""
     exe = Path(sys.executable).with_name("mcdenoise")
@@ -158,6 +198,19 @@ def run_once(
     return wall, float(record["seconds"])
 
 
+def startup_once(env: dict[str, str], timeout: float) -> float:
+    """Seconds of a process that only starts: Python, torch and the denoise module imported
+    (the floor of every row: no method runs)."""
+    start = time.perf_counter()
+    subprocess.run(
+        [sys.executable, "-c", "import mcdenoise_cli.main, mcdenoise.denoise"],
+        check=True,
+        env={**os.environ, **env},
+        timeout=timeout,
+    )
+    return time.perf_counter() - start
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=3, help="runs per cell (median)")
@@ -167,7 +220,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--load-threads", type=int, default=2, help="threads of the background load")
     ap.add_argument("--timeout", type=float, default=600.0, help="seconds per run")
     ap.add_argument("--calibrate", action="store_true", help="measure RECORDED_SPEED instead")
+    ap.add_argument(
+        "--waits", action="store_true", help="idle 512x512 times per thread count and wait policy"
+    )
     ns = ap.parse_args(argv)
+    if ns.waits:
+        compare_waits([m for m in ns.methods.split(",") if m and available(m)], ns.repeats)
+        return 0
     if ns.calibrate:
         calibrate([m for m in ns.methods.split(",") if m and available(m)], ns.repeats)
         return 0
@@ -188,6 +247,13 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.exr"
         run_once(methods[0], extra, env, out, ns.timeout)  # warm the file cache
+        idle_s, loaded_s = [], []
+        for _ in range(ns.repeats):
+            idle_s.append(startup_once(env, ns.timeout))
+            with Load(ns.load_threads):
+                loaded_s.append(startup_once(env, ns.timeout))
+        wi, wl = statistics.median(idle_s), statistics.median(loaded_s)
+        print(f"{'(start-up only)':<16} {wi:>8.2f} {wl:>9.2f} {wl / wi:>5.1f}×", flush=True)
         for m in methods:
             idle, loaded = [], []
             for _ in range(ns.repeats):

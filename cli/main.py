@@ -5,9 +5,10 @@ Each command parses its options and calls one library function. Errors caused by
 ``mcdenoise: error: ...`` on stderr with exit code 1; usage errors exit with 2 (click's
 convention); Ctrl-C exits with 130. Set ``MCDENOISE_DEBUG=1`` to see tracebacks.
 
-Importing this module sets ``OMP_WAIT_POLICY=PASSIVE`` (unless the user set ``OMP_WAIT_POLICY``
-or ``GOMP_SPINCOUNT``) before anything imports torch, so idle OpenMP threads sleep instead of
-spinning against another busy process (:mod:`mcdenoise.threads`, ``docs/results/threads.md``).
+Importing this module sets ``GOMP_SPINCOUNT=10000`` (unless the user set ``OMP_WAIT_POLICY`` or
+``GOMP_SPINCOUNT``) before anything imports torch, so a waiting OpenMP thread spins briefly, then
+sleeps, instead of spinning long against another busy process (:mod:`mcdenoise.threads`,
+``docs/results/threads.md``).
 Warnings of the library (logger ``mcdenoise``) are printed as ``mcdenoise: warning: ...``.
 """
 

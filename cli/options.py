@@ -82,6 +82,6 @@ def threads_option(*, render: bool = False, expose: bool = False):
         expose_value=expose,
         callback=apply,
         help="CPU threads to compute with. Default auto: OMP_NUM_THREADS if set, else the "
-        "physical cores not busy with other processes at start (at least 1); idle OpenMP "
-        "threads sleep (OMP_WAIT_POLICY=PASSIVE unless set).",
+        "physical cores not busy with other processes at start (at least 1); waiting OpenMP "
+        "threads spin only briefly (GOMP_SPINCOUNT=10000 unless set).",
     )

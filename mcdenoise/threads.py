@@ -8,10 +8,13 @@ parallel operator pays for it: on 2 shared cores with a 2-thread torch loop runn
 ``kalantari-xbf`` on a 128×128 sample took 82 s instead of 0.3 s (issue 20). Measured choices
 are in ``docs/results/threads.md``; what this module does about it:
 
-* :func:`set_wait_policy` makes idle OpenMP threads sleep instead of spin
-  (``OMP_WAIT_POLICY=PASSIVE``) unless the user chose a policy. It must run before libgomp
-  starts, i.e. before ``import torch`` in the process: the ``mcdenoise`` command calls it first
-  thing; library users set the variable themselves.
+* :func:`set_wait_policy` bounds the spinning: ``GOMP_SPINCOUNT=10000`` (a waiting thread spins
+  about 30 times less long, then sleeps) unless the user chose ``OMP_WAIT_POLICY`` or
+  ``GOMP_SPINCOUNT``. Not ``PASSIVE``: measured here, sleeping at every barrier made two
+  threads 3× slower than one on an idle machine (futex wake-ups in a VM), while a short spin
+  keeps two threads' idle speed. It must run before libgomp starts, i.e. before ``import torch``
+  in the process: the ``mcdenoise`` command calls it first thing; library users set the
+  variable themselves.
 * :func:`choose_threads` picks the thread count: an explicit request; else ``OMP_NUM_THREADS``
   when set; else ``auto``: the physical cores this process may use minus the other tasks
   running on them right now (``/proc/loadavg``), at least 1, so a busy machine gets one
@@ -58,32 +61,37 @@ MIN_WARN_SECONDS = 1.0
 
 #: Each shipped method's speed on one thread, idle, as ``(fixed seconds, seconds per
 #: megapixel)``: the expected time of one frame of ``P`` megapixels is ``fixed + P * per_mp``.
-#: Measured by ``python benchmarks/bench_threads.py --calibrate`` (min of 3 fresh processes; the
-#: first frame, model loading included, as a command-line user waits for it: cornell_spp4
-#: 128×128, then tiled to 512×512) on 2 AMD EPYC cores, torch 2.13 CPU, on 2026-11-25 while
-#: other jobs kept the load average at 13–16: slower than idle, which only makes the warning
-#: more cautious (``docs/results/threads.md``).
+#: Measured by ``python benchmarks/bench_threads.py --calibrate --repeats 3`` (minimum over 3
+#: fresh processes; the first frame, model loading included, as a command-line user waits for
+#: it: cornell_spp4 at 128×128, then tiled to 512×512) on 2 AMD EPYC vCPUs, torch 2.13 CPU,
+#: 2026-11-25, load average 2.6 → 1.7 from other jobs (``docs/results/threads.md``). A table
+#: in the code rather than a data file: no packaging, and a change shows in the diff.
 RECORDED_SPEED: Mapping[str, tuple[float, float]] = {
-    "nlm": (0.154, 28.7),
-    "cross-bilateral": (0.0785, 21.8),
-    "kalantari-xbf": (0.0, 46.9),
-    "kalantari-nlm": (0.13, 31.4),
-    "kpcn": (0.0718, 5.01),
-    "oidn": (0.427, 2.57),
+    "nlm": (0.049, 9.24),
+    "cross-bilateral": (0.0275, 7.55),
+    "kalantari-xbf": (0.0361, 14.4),
+    "kalantari-nlm": (0.0622, 11.0),
+    "kpcn": (0.0189, 1.48),
+    "oidn": (0.121, 0.223),
 }
 
 _ENV_POLICY = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
 
 
+#: The spin count the command sets (libgomp's default: 300 000; 0 or PASSIVE: sleep at once).
+SPIN_COUNT = "10000"
+
+
 def set_wait_policy(env: MutableMapping[str, str] | None = None) -> str:
-    """Set ``OMP_WAIT_POLICY=PASSIVE`` in ``env`` (default ``os.environ``) unless the user set
-    ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``; returns the policy in effect (:func:`wait_policy`).
+    """Set ``GOMP_SPINCOUNT`` to :data:`SPIN_COUNT` in ``env`` (default ``os.environ``) unless
+    the user set ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``; returns the policy in effect
+    (:func:`wait_policy`).
 
     Takes effect only if called before libgomp starts (before ``import torch``).
     """
     env = os.environ if env is None else env
     if not any(env.get(k, "").strip() for k in _ENV_POLICY):
-        env["OMP_WAIT_POLICY"] = "PASSIVE"
+        env["GOMP_SPINCOUNT"] = SPIN_COUNT
     return wait_policy(env)
 
 

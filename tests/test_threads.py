@@ -30,16 +30,16 @@ def _restore_threads():
 # --- wait policy --------------------------------------------------------------------------
 
 
-def test_wait_policy_is_set_passive_unless_the_user_chose_one() -> None:
+def test_the_spin_is_bounded_unless_the_user_chose_a_policy() -> None:
     env: dict[str, str] = {}
-    assert threads.set_wait_policy(env) == "PASSIVE"
-    assert env == {"OMP_WAIT_POLICY": "PASSIVE"}
+    assert threads.set_wait_policy(env) == "GOMP_SPINCOUNT=10000"
+    assert env == {"GOMP_SPINCOUNT": "10000"}
     active = {"OMP_WAIT_POLICY": "active"}
     assert threads.set_wait_policy(active) == "ACTIVE"
     assert active == {"OMP_WAIT_POLICY": "active"}
     spin = {"GOMP_SPINCOUNT": "0"}
     assert threads.set_wait_policy(spin) == "GOMP_SPINCOUNT=0"
-    assert "OMP_WAIT_POLICY" not in spin
+    assert spin == {"GOMP_SPINCOUNT": "0"}
     assert threads.wait_policy({}) == "default"
 
 
@@ -69,13 +69,13 @@ CHECK = (
 def test_the_cli_sets_the_policy_before_torch_starts_in_a_fresh_process() -> None:
     seen = _fresh(CHECK)
     assert seen["torch_before"] is False  # importing the CLI does not start torch (libgomp)
-    assert seen["policy"] == "PASSIVE"
+    assert seen["spin"] == "10000" and seen["policy"] is None
     assert seen["threads"] >= 1
 
 
 def test_the_cli_keeps_a_policy_and_thread_count_the_user_set() -> None:
     seen = _fresh(CHECK, OMP_WAIT_POLICY="ACTIVE", OMP_NUM_THREADS="1")
-    assert seen["policy"] == "ACTIVE" and seen["threads"] == 1
+    assert seen["policy"] == "ACTIVE" and seen["spin"] is None and seen["threads"] == 1
     seen = _fresh(CHECK, GOMP_SPINCOUNT="1000")
     assert seen["policy"] is None and seen["spin"] == "1000"
 
@@ -130,7 +130,7 @@ def test_physical_cores_counts_hyperthreads_once(tmp_path: Path, monkeypatch) ->
 
 
 def test_apply_threads_sets_torch() -> None:
-    assert threads.apply_threads(threads.ThreadChoice(1, "--threads", "PASSIVE")) == 1
+    assert threads.apply_threads(threads.ThreadChoice(1, "--threads", "default")) == 1
     assert torch.get_num_threads() == 1
 
 
