@@ -6,7 +6,7 @@ works offline and without a script (two radio inputs and CSS sibling selectors, 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -106,7 +106,7 @@ def overall_sections(result: ExperimentResult, out: Path, reason: str | None) ->
         for tag, view in views
     }
 
-    def scoped(render: Any) -> str:
+    def scoped(render: Callable[[str, OverallView], str]) -> str:
         if len(views) == 1:
             return render(*views[0])
         return "".join(f'<div class="v-{tag}">{render(tag, view)}</div>' for tag, view in views)
@@ -119,7 +119,7 @@ def overall_sections(result: ExperimentResult, out: Path, reason: str | None) ->
     parts = []
     if len(views) > 1:
         flagged = ", ".join(result.flagged)
-        n, k = len(result.scenes), len(result.without_flagged.scenes)  # type: ignore[union-attr]
+        n, k = len(result.scenes), len(views[1][1].scenes)
         parts.append(
             '<input type="radio" name="scope" id="scope-all" class="scope" checked>'
             '<input type="radio" name="scope" id="scope-unflagged" class="scope">'

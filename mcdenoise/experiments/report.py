@@ -107,6 +107,11 @@ HOW_TO_READ = (
     "method, so no method is credited with beating the reference. With several scenes, "
     "ratios to a baseline come with a bootstrap confidence interval over scenes: a "
     "difference whose interval contains 1 is reported as no clear difference.</p>"
+    "<p><b>Mean bias</b>: the output's mean over the reference's mean − 1 (−3 % = 3 % darker: "
+    "energy lost); the noisy row shows how far plain rendering's mean wanders by noise alone. "
+    "A scene whose plain-rendering error <b>rises</b> with more samples is <b>flagged</b>: a few "
+    "fireflies dominate its error, and the sections over all scenes can be switched to the "
+    "scenes without it.</p>"
 )
 
 
