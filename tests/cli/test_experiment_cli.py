@@ -58,7 +58,7 @@ def experiment(tmp_path_factory):
 def test_experiment_prints_a_summary_and_ends_with_the_report(experiment):
     _, _, out, first = experiment
     assert first.exit_code == 0, first.output + first.stderr
-    lines = first.output.strip().splitlines()
+    lines = first.stdout.strip().splitlines()
     assert lines[0].startswith("experiment cli: 1 scene(s) x 2 spp level(s) x 2 method(s)")
     assert "rendered 1 image(s)" in lines[0] and "ran 4 unit(s)" in lines[0]
     assert lines[-1] == f"report: {out / 'report.html'}"
