@@ -39,7 +39,7 @@ def _pixels(*values: float) -> torch.Tensor:
 def test_smape_hand_computed() -> None:
     d = _pixels(1.0, 2.0, 0.0, 3.0)
     r = _pixels(0.0, 1.0, 0.0, 3.0)
-    # |d - r| / (|d| + |r| + 0.01) per pixel: 1/1.01, 1/3.01, 0 (HARD_CASES 26), 0
+    # |d - r| / (|d| + |r| + 0.01) per pixel: 1/1.01, 1/3.01, 0 (docs/hard-cases.md item 26), 0
     want = (1 / 1.01 + 1 / 3.01 + 0 + 0) / 4
     assert SMAPE_EPS == 0.01
     assert float(smape(d, r)) == pytest.approx(want, rel=1e-6)
@@ -279,7 +279,7 @@ def test_asymmetric_on_random_data_matches_its_definition() -> None:
 @pytest.mark.parametrize("name", ["smape", "relmse", "l1", "asymmetric"])
 def test_losses_are_float32_under_bf16_autocast(name: str) -> None:
     g = torch.Generator().manual_seed(7)
-    # HDR values near 1e5 (HARD_CASES 22): squares overflow half precision, not float32
+    # HDR values near 1e5 (docs/hard-cases.md item 22): squares overflow half precision, not float32
     d, r, x = (1e5 * torch.rand(2, 3, 6, 6, generator=g) for _ in range(3))
     db, rb, xb = (t.bfloat16() for t in (d, r, x))
     with torch.autocast("cpu", dtype=torch.bfloat16):

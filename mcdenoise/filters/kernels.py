@@ -18,7 +18,7 @@ Two entry points share one private loop (``_accumulate``):
   parameters and guide features (the cross-bilateral and NLM filters), so no ``k²`` weight
   tensor exists at all.
 
-Policies (HARD_CASES 15, 17, 20):
+Policies (docs/hard-cases.md items 15, 17, 20):
 
 * **Borders**: only in-image neighbours count; the sum is renormalised over them. A positive
   image is never darkened near the border and no padding value leaks in.

@@ -103,7 +103,7 @@ def test_torch_and_float32_inputs_agree_with_float64_numpy():
         assert fn(out.astype(np.float32), ref.astype(np.float32)) == pytest.approx(exact, rel=1e-5)
 
 
-# --- edge cases (HARD_CASES 30-32) --------------------------------------------------------------
+# --- edge cases (docs/hard-cases.md items 30-32) --------------------------------------------------------------
 
 
 def test_identical_images():
@@ -120,7 +120,7 @@ def test_identical_images():
 def test_zero_reference_pixels_give_defined_values():
     zero = const(0.0)
     assert M.relmse(const(0.1), zero) == pytest.approx(0.01 / 0.01)
-    assert M.smape(zero, zero) == 0.0  # HARD_CASES 26: prediction = target = 0 -> 0
+    assert M.smape(zero, zero) == 0.0  # docs/hard-cases.md item 26: prediction = target = 0 -> 0
     assert M.smape(const(0.1), zero) == pytest.approx(0.1 / 0.11)
     values = M.compute_metrics(const(0.1), zero, ["relmse", "smape", "mse", "psnr", "ssim"])
     assert not values.failed

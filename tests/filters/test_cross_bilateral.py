@@ -1,4 +1,4 @@
-"""Tests of mcdenoise.filters.cross_bilateral (HARD_CASES 13-20, gradcheck, properties)."""
+"""Tests of mcdenoise.filters.cross_bilateral (docs/hard-cases.md items 13-20, gradcheck, properties)."""
 
 from __future__ import annotations
 
@@ -116,7 +116,7 @@ def test_matches_naive_formula_with_named_float_parameters() -> None:
 
 @pytest.mark.parametrize("value", [0.0, 0.25, 40.0])
 def test_constant_and_zero_images_unchanged(value: float) -> None:
-    # HARD_CASES 13 and 17 (borders: the whole image, corners included, keeps its value)
+    # docs/hard-cases.md items 13 and 17 (borders: the whole image, corners included, keeps its value)
     c = torch.full((1, 3, 15, 11), value, dtype=torch.float64)
     feats = [rand(1, 3, 15, 11, seed=12), rand(1, 1, 15, 11, seed=13)]
     out = cross_bilateral(
@@ -127,7 +127,7 @@ def test_constant_and_zero_images_unchanged(value: float) -> None:
 
 @pytest.mark.parametrize("h,w", [(1, 1), (1, 2), (2, 1), (2, 2), (4, 3)])
 def test_images_smaller_than_kernel(h: int, w: int) -> None:
-    # HARD_CASES 14
+    # docs/hard-cases.md items 14
     c = rand(1, 3, h, w, seed=15)
     feats = [rand(1, 3, h, w, seed=16)]
     out = cross_bilateral(c, feats, kernel_size=21, sigma_spatial=3.0, sigma_color=0.7)
@@ -146,7 +146,7 @@ def test_images_smaller_than_kernel(h: int, w: int) -> None:
     ],
 )
 def test_vanishing_bandwidth_gives_identity_without_nan(kwargs) -> None:
-    # HARD_CASES 15: σ -> 0 is the identity (distinct neighbours get weight 0), never 0·∞.
+    # docs/hard-cases.md item 15: σ -> 0 is the identity (distinct neighbours get weight 0), never 0·∞.
     c = rand(1, 3, 9, 9, seed=17)
     feats = [rand(1, 3, 9, 9, seed=18)]
     out = cross_bilateral(c, feats, kernel_size=7, color_var=rand(1, 1, 9, 9, seed=19), **kwargs)
@@ -157,7 +157,7 @@ def test_vanishing_bandwidth_gives_identity_without_nan(kwargs) -> None:
 @pytest.mark.parametrize("where", ["color", "albedo"])
 @pytest.mark.parametrize("bad", [float("nan"), float("inf")])
 def test_one_bad_pixel_is_confined_to_the_kernel_footprint(where: str, bad: float) -> None:
-    # HARD_CASES 16: sanitise (io.buffers.sanitize) then filter; only pixels within k//2 of
+    # docs/hard-cases.md item 16: sanitise (io.buffers.sanitize) then filter; only pixels within k//2 of
     # the bad pixel may differ from filtering the image without it.
     k, h, w, py, px = 5, 16, 16, 7, 9
     clean = {
@@ -192,7 +192,7 @@ def test_non_finite_input_is_refused() -> None:
 
 
 def test_dtype_preserved_and_precisions_agree(scene) -> None:
-    # HARD_CASES 18
+    # docs/hard-cases.md items 18
     kw = dict(kernel_size=7, sigma_spatial=2.0, sigma_color=1.0, sigma_features=0.2)
     o64 = cross_bilateral(scene.noisy, [scene.albedo], color_var=scene.var, **kw)
     o32 = cross_bilateral(
@@ -204,7 +204,7 @@ def test_dtype_preserved_and_precisions_agree(scene) -> None:
 
 @pytest.mark.parametrize("scale", [1.0, 1e-3])
 def test_gradcheck_per_pixel_bandwidths(scale: float) -> None:
-    # HARD_CASES 19, including near-zero bandwidths (scale 1e-3: most weights underflow).
+    # docs/hard-cases.md items 19, including near-zero bandwidths (scale 1e-3: most weights underflow).
     g = torch.Generator().manual_seed(22)
     h, w = 4, 4
     c = torch.rand(1, 2, h, w, generator=g, dtype=torch.float64)
@@ -244,7 +244,7 @@ def test_gradcheck_scalar_tensor_bandwidth() -> None:
 
 
 def test_tiled_equals_untiled(scene) -> None:
-    # HARD_CASES 20
+    # docs/hard-cases.md items 20
     x = scene.noisy.float()
     kw = dict(kernel_size=9, sigma_spatial=3.0, color_var=scene.var.float())
     full = cross_bilateral(x, [scene.albedo.float()], tile=1000, **kw)

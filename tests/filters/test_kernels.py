@@ -1,4 +1,4 @@
-"""Tests of mcdenoise.filters.kernels (HARD_CASES 13-15, 17, 18, 20; gradcheck)."""
+"""Tests of mcdenoise.filters.kernels (docs/hard-cases.md items 13-15, 17, 18, 20; gradcheck)."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def test_identity_kernel_is_exact() -> None:
 
 @pytest.mark.parametrize("value", [0.0, 0.7, 123.0])
 def test_constant_image_unchanged_including_borders(value: float) -> None:
-    # HARD_CASES 13 and 17: a zero-padded filter would darken the border of a positive image.
+    # docs/hard-cases.md items 13 and 17: a zero-padded filter would darken the border of a positive image.
     x = torch.full((1, 3, 12, 10), value, dtype=torch.float64)
     out = apply_kernels(x, softmax_kernels(1, 7, 12, 10))
     torch.testing.assert_close(out, x, rtol=1e-12, atol=0.0)
@@ -68,7 +68,7 @@ def test_zero_padding_would_have_darkened() -> None:
 @pytest.mark.parametrize("h,w", [(1, 1), (1, 2), (2, 1), (2, 2), (3, 3)])
 @pytest.mark.parametrize("normalize", [True, False])
 def test_images_smaller_than_kernel(h: int, w: int, normalize: bool) -> None:
-    # HARD_CASES 14
+    # docs/hard-cases.md items 14
     g = torch.Generator().manual_seed(3)
     x = torch.rand(1, 3, h, w, generator=g, dtype=torch.float64)
     wt = torch.rand(1, 21 * 21, h, w, generator=g, dtype=torch.float64)
@@ -78,7 +78,7 @@ def test_images_smaller_than_kernel(h: int, w: int, normalize: bool) -> None:
 
 
 def test_all_zero_weights_fall_back_to_centre() -> None:
-    # HARD_CASES 15: never 0/0.
+    # docs/hard-cases.md item 15: never 0/0.
     x = torch.rand(1, 3, 6, 7)
     wt = torch.zeros(1, 9, 6, 7)
     out = apply_kernels(x, wt, normalize=True)
@@ -105,7 +105,7 @@ def test_mass_only_outside_the_image_falls_back_to_centre() -> None:
 
 @pytest.mark.parametrize("tile,h,w", [(1, 9, 7), (5, 37, 29), ((3, 8), 37, 29), (64, 37, 29)])
 def test_tiled_equals_untiled(tile, h: int, w: int) -> None:
-    # HARD_CASES 20
+    # docs/hard-cases.md items 20
     g = torch.Generator().manual_seed(4)
     x = torch.rand(2, 3, h, w, generator=g)
     wt = torch.softmax(torch.randn(2, 81, h, w, generator=g), dim=1)
@@ -152,7 +152,7 @@ def test_accumulate_weighted_skips_none() -> None:
 
 
 def test_dtype_preserved_and_precisions_agree() -> None:
-    # HARD_CASES 18
+    # docs/hard-cases.md items 18
     x64 = torch.rand(1, 3, 16, 16, dtype=torch.float64) * 10
     w64 = softmax_kernels(1, 5, 16, 16)
     o64 = apply_kernels(x64, w64)
@@ -165,7 +165,7 @@ def test_dtype_preserved_and_precisions_agree() -> None:
 
 @pytest.mark.parametrize("normalize", [True, False])
 def test_gradcheck(normalize: bool) -> None:
-    # HARD_CASES 19: gradients w.r.t. the image and the (predicted) weights.
+    # docs/hard-cases.md item 19: gradients w.r.t. the image and the (predicted) weights.
     g = torch.Generator().manual_seed(5)
     x = torch.rand(1, 2, 3, 4, generator=g, dtype=torch.float64, requires_grad=True)
     logits = torch.randn(1, 9, 3, 4, generator=g, dtype=torch.float64)

@@ -1,4 +1,4 @@
-"""Tests of mcdenoise.filters.nlm (box filter == naive patch loop, HARD_CASES 13-20)."""
+"""Tests of mcdenoise.filters.nlm (box filter == naive patch loop, docs/hard-cases.md items 13-20)."""
 
 from __future__ import annotations
 
@@ -157,7 +157,7 @@ def test_feature_weights_equal_naive(combine: str) -> None:
 
 @pytest.mark.parametrize("value", [0.0, 0.3, 50.0])
 def test_constant_and_zero_images_unchanged(value: float) -> None:
-    # HARD_CASES 13 and 17 (border pixels keep the constant too)
+    # docs/hard-cases.md items 13 and 17 (border pixels keep the constant too)
     c = torch.full((1, 3, 13, 12), value, dtype=torch.float64)
     out = non_local_means(
         c,
@@ -174,7 +174,7 @@ def test_constant_and_zero_images_unchanged(value: float) -> None:
 
 @pytest.mark.parametrize("h,w", [(1, 1), (1, 2), (2, 1), (2, 2), (3, 4)])
 def test_images_smaller_than_window_and_patch(h: int, w: int) -> None:
-    # HARD_CASES 14
+    # docs/hard-cases.md items 14
     c = rand(1, 3, h, w, seed=15)
     var = rand(1, 1, h, w, seed=16, hi=0.1)
     out = non_local_means(c, search_radius=10, patch_radius=3, color_var=var)
@@ -192,7 +192,7 @@ def test_images_smaller_than_window_and_patch(h: int, w: int) -> None:
     ],
 )
 def test_vanishing_bandwidth_gives_identity_without_nan(kwargs) -> None:
-    # HARD_CASES 15
+    # docs/hard-cases.md items 15
     c = rand(1, 3, 10, 10, seed=17)
     if kwargs.get("color_var") == "var":
         kwargs = {**kwargs, "color_var": rand(1, 1, 10, 10, seed=18, hi=0.1)}
@@ -218,7 +218,7 @@ def test_firefly_keeps_precision(f: int) -> None:
 
 @pytest.mark.parametrize("where", ["color", "normal"])
 def test_one_nan_pixel_is_confined_to_the_footprint(where: str) -> None:
-    # HARD_CASES 16: after sanitising, a pixel can only influence pixels within r + f
+    # docs/hard-cases.md item 16: after sanitising, a pixel can only influence pixels within r + f
     # (its patches enter the distances of those pixels' search windows).
     r, f, h, w, py, px = 2, 1, 18, 18, 8, 9
     clean = {"color": rand(3, h, w, seed=20).float(), "normal": rand(3, h, w, seed=21).float()}
@@ -255,7 +255,7 @@ def test_non_finite_input_is_refused() -> None:
 
 
 def test_dtype_preserved_and_precisions_agree(scene) -> None:
-    # HARD_CASES 18
+    # docs/hard-cases.md items 18
     o64 = non_local_means(scene.noisy, search_radius=4, patch_radius=2, color_var=scene.var)
     o32 = non_local_means(
         scene.noisy.float(), search_radius=4, patch_radius=2, color_var=scene.var.float()
@@ -266,7 +266,7 @@ def test_dtype_preserved_and_precisions_agree(scene) -> None:
 
 @pytest.mark.parametrize("scale", [1.0, 1e-3])
 def test_gradcheck_per_pixel_parameters(scale: float) -> None:
-    # HARD_CASES 19: k (variance form), h (classic form) and a feature bandwidth, per pixel,
+    # docs/hard-cases.md item 19: k (variance form), h (classic form) and a feature bandwidth, per pixel,
     # including near-zero values (scale 1e-3).
     g = torch.Generator().manual_seed(22)
     hh, ww = 4, 4
@@ -301,7 +301,7 @@ def test_gradcheck_per_pixel_parameters(scale: float) -> None:
 
 
 def test_tiled_equals_untiled(scene) -> None:
-    # HARD_CASES 20 (tiles change the range of the cumulative sums: rounding only)
+    # docs/hard-cases.md items 20 (tiles change the range of the cumulative sums: rounding only)
     x, v = scene.noisy.float(), scene.var.float()
     full = non_local_means(x, search_radius=4, patch_radius=2, color_var=v, tile=1000)
     for tile in (3, 8, (5, 13)):

@@ -61,7 +61,7 @@ def test_denoisers_work_with_colour_only_or_some_features(scene, denoise, kw) ->
 @pytest.mark.parametrize("denoise", DENOISERS)
 @pytest.mark.parametrize("value", [0.0, 0.3])
 def test_constant_image_survives_the_pipeline(denoise, value: float) -> None:
-    # HARD_CASES 13 end to end: demodulation by a (uniform) albedo and remodulation are exact.
+    # docs/hard-cases.md items 13 end to end: demodulation by a (uniform) albedo and remodulation are exact.
     fb = FeatureBuffers(
         buffers={
             "color": torch.full((3, 12, 12), value),
@@ -77,7 +77,7 @@ def test_constant_image_survives_the_pipeline(denoise, value: float) -> None:
 @pytest.mark.parametrize("denoise", DENOISERS)
 @pytest.mark.parametrize("h,w", [(1, 1), (1, 2), (2, 1), (2, 2), (3, 5)])
 def test_tiny_images(denoise, h: int, w: int) -> None:
-    # HARD_CASES 14, end to end (variance estimation and extent included).
+    # docs/hard-cases.md items 14, end to end (variance estimation and extent included).
     fb = FeatureBuffers(
         buffers={
             "color": torch.rand(3, h, w),

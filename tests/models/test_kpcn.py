@@ -207,7 +207,7 @@ def test_training_forward_routes_each_crop_to_its_source(cornell, model) -> None
     assert not torch.allclose(res[0], res[2], atol=1e-4)
 
 
-# --- hard inputs (HARD_CASES 13, 14, 16, 23, 24) ----------------------------------------------
+# --- hard inputs (docs/hard-cases.md items 13, 14, 16, 23, 24) ----------------------------------------------
 
 
 def _nan_inf_colour(b: FeatureBuffers) -> FeatureBuffers:
@@ -338,7 +338,7 @@ def test_truncated_or_foreign_files_give_checkpoint_errors(model, tmp_path) -> N
         KpcnModel.load(tmp_path / "missing.pt")
 
 
-# --- mixed precision (HARD_CASES 22) ------------------------------------------------------------
+# --- mixed precision (docs/hard-cases.md item 22) ------------------------------------------------------------
 
 
 def test_bf16_autocast_keeps_kernels_and_output_float32(cornell, model, monkeypatch) -> None:

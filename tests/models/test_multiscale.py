@@ -31,7 +31,7 @@ def _check_kernels(w: torch.Tensor) -> None:
 
 
 def _hostile_logits() -> torch.Tensor:
-    """``(1, 9, 2, 4)`` logits; every pixel holds another kind of trouble (HARD_CASES 21)."""
+    """``(1, 9, 2, 4)`` logits; every pixel holds another kind of trouble (docs/hard-cases.md item 21)."""
     g = torch.Generator().manual_seed(0)
     z = torch.randn(1, 9, 2, 4, generator=g)
     z[0, 0, 0, 0] = 1e30  # one huge tap
@@ -192,7 +192,7 @@ def test_a_constant_image_stays_constant_under_any_kernels() -> None:
 
 def test_apply_head_output_is_float32_under_bf16_autocast() -> None:
     head = nn.Conv2d(4, 9, 1)
-    image = (torch.rand(1, 3, 6, 6) * 1e5).bfloat16()  # HDR near 1e5 (HARD_CASES 22)
+    image = (torch.rand(1, 3, 6, 6) * 1e5).bfloat16()  # HDR near 1e5 (docs/hard-cases.md item 22)
     feats = torch.randn(1, 4, 6, 6)
     with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
         for strip in (None, 2):
