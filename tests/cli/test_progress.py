@@ -8,6 +8,7 @@ import importlib.util
 import io
 import os
 import re
+import select
 import sys
 from pathlib import Path
 
@@ -90,7 +91,10 @@ def test_a_terminal_without_a_size_still_gets_a_bar(monkeypatch) -> None:
         for _ in progress.progress_bar(range(2), desc="render", unit="image"):
             pass
         term.flush()
-        drawn = os.read(master, 65536).decode("utf-8", "replace")
+        chunks = []  # a pty hands over what it holds per read: read until it is empty
+        while select.select([master], [], [], 0.5)[0]:
+            chunks.append(os.read(master, 65536))
+        drawn = b"".join(chunks).decode("utf-8", "replace")
     os.close(master)
     assert "render: 100%" in drawn and "2/2" in drawn
 
