@@ -27,71 +27,19 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "mcdenoise"
 
+#: Every unit a rule can name; each rule below lists what a unit must NOT import.
+_UNITS = {
+    *("io", "filters", "prep", "models", "methods", "train", "eval", "experiments", "render"),
+    *("losses", "registry", "denoise", "modelfile"),
+}
+
 FORBIDDEN: dict[str, set[str]] = {
-    "io": {
-        "filters",
-        "prep",
-        "models",
-        "methods",
-        "train",
-        "eval",
-        "experiments",
-        "render",
-        "losses",
-        "registry",
-        "denoise",
-    },
-    "filters": {
-        "io",
-        "prep",
-        "models",
-        "methods",
-        "train",
-        "eval",
-        "experiments",
-        "render",
-        "registry",
-        "denoise",
-    },
-    "models": {
-        "io",
-        "prep",
-        "methods",
-        "train",
-        "eval",
-        "experiments",
-        "render",
-        "registry",
-        "denoise",
-    },
-    "modelfile": {
-        "models",
-        "train",
-        "prep",
-        "methods",
-        "eval",
-        "experiments",
-        "render",
-        "registry",
-        "denoise",
-        "filters",
-    },
+    "io": _UNITS - {"io", "modelfile"},
+    "filters": _UNITS - {"filters", "losses", "modelfile"},
+    "models": _UNITS - {"models", "filters", "losses", "modelfile"},
+    "modelfile": _UNITS - {"modelfile", "io", "losses"},
     "losses": {"io", "prep", "models", "methods", "train", "eval", "experiments", "render"},
-    "errors": {
-        "io",
-        "filters",
-        "prep",
-        "models",
-        "methods",
-        "train",
-        "eval",
-        "experiments",
-        "render",
-        "losses",
-        "registry",
-        "denoise",
-        "modelfile",
-    },
+    "errors": set(_UNITS),
 }
 
 
