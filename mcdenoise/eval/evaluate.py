@@ -207,41 +207,38 @@ def _load(path: Path, part: str | None = None) -> tuple[np.ndarray, _Meta]:
 # --- does an output show the reference's scene? --------------------------------------------
 
 
-def same_scene(
-    reference: Mapping[str, str], source: Mapping[str, str], reference_stem: str, source_stem: str
-) -> bool:
-    """Whether an output made from ``source`` shows the scene of ``reference``.
+def same_scene(reference: Mapping[str, str], source: Mapping[str, str]) -> bool:
+    """Whether what the headers record allows an output made from ``source`` to show the
+    scene of ``reference``.
 
     ``reference`` and ``source`` are the scene attributes of the two headers
     (``mcdenoise:scene``, ``mcdenoise:image``, ``mcdenoise:frame``, as written by
-    ``mcdenoise render`` and kept in the shipped samples). The rule:
+    ``mcdenoise render`` and kept in the shipped samples and in ``mcdenoise denoise``'s
+    outputs). Only recorded provenance can contradict a pairing: every attribute that *both*
+    headers record must be equal. Where one file records nothing (a user's own ``noisy.exr``
+    and ``ref.exr``, another renderer's files) the pairing stands; file names are never taken
+    for scenes.
 
-    1. both headers name a scene: the scenes must be equal, and so must the image ids and
-       the frames where both headers name them;
-    2. otherwise the file names decide: the source's stem must start with the reference's
-       stem at a word boundary, or the other way round (``cornell_spp4`` and ``cornell``;
-       the naming of ``data/samples`` and of ``mcdenoise render`` folders).
-
-    >>> same_scene({"mcdenoise:scene": "caustic"}, {"mcdenoise:scene": "cornell"}, "a", "a")
+    >>> same_scene({"mcdenoise:scene": "caustic"}, {"mcdenoise:scene": "cornell"})
     False
-    >>> same_scene({}, {}, "cornell", "cornell_spp4"), same_scene({}, {}, "dof", "cornell_spp4")
-    (True, False)
+    >>> same_scene({"mcdenoise:scene": "cornell"}, {}), same_scene({}, {})
+    (True, True)
     """
-    if ATTR_SCENE in reference and ATTR_SCENE in source:
-        return all(reference[k] == source[k] for k in _IDENTITY if k in reference and k in source)
-    return (
-        match_prefix(source_stem, [reference_stem]) is not None
-        or match_prefix(reference_stem, [source_stem]) is not None
-    )
+    return not _conflicts(reference, source)
 
 
-def _source_identity(meta: _Meta, depth: int = 4) -> tuple[dict[str, str], str]:
-    """Scene attributes and stem of the file ``meta``'s output was made from: the output's
-    own attributes when it records them, else its source's header (followed through a chain
-    of outputs), else ``{}`` and the recorded source's stem."""
+def _conflicts(reference: Mapping[str, str], source: Mapping[str, str]) -> list[str]:
+    """The identity attributes both headers record with different values."""
+    return [k for k in _IDENTITY if k in reference and k in source and reference[k] != source[k]]
+
+
+def _source_identity(meta: _Meta, depth: int = 4) -> dict[str, str]:
+    """Scene attributes of the file ``meta``'s output was made from: the output's own
+    attributes when it records a scene (``mcdenoise denoise`` copies them), else its source's
+    header (followed through a chain of outputs), else what the output itself records
+    (often nothing)."""
     if ATTR_SCENE in meta.identity:
-        return meta.identity, Path(meta.source or meta.path).stem
-    assert meta.source is not None
+        return meta.identity
     src = _source_path(meta)
     if src is not None and depth > 0:
         try:
@@ -250,9 +247,9 @@ def _source_identity(meta: _Meta, depth: int = 4) -> tuple[dict[str, str], str]:
             upstream = None
         if upstream is not None:
             if ATTR_SCENE in upstream.identity or upstream.source is None:
-                return upstream.identity, src.stem
+                return upstream.identity
             return _source_identity(upstream, depth - 1)
-    return {}, Path(meta.source).stem
+    return meta.identity
 
 
 def _source_path(meta: _Meta) -> Path | None:
@@ -265,10 +262,12 @@ def _source_path(meta: _Meta) -> Path | None:
     return src if src.is_file() else None
 
 
-def _describe_scene(identity: Mapping[str, str], stem: str) -> str:
-    if ATTR_SCENE in identity:
-        return f"scene {identity[ATTR_SCENE]!r}"
-    return f"scene {stem!r} by its file name"
+def _describe_scene(identity: Mapping[str, str], keys: Sequence[str]) -> str:
+    """``scene 'cornell'``, ``scene 'a', image 'a_2'``: the attributes ``keys`` of ``identity``."""
+    shown = [ATTR_SCENE, *keys] if ATTR_SCENE in identity else list(keys)
+    return ", ".join(
+        f"{k.split(':')[-1]} {identity[k]!r}" for k in dict.fromkeys(shown) if k in identity
+    )
 
 
 # --- the engine ---------------------------------------------------------------------------
@@ -436,10 +435,11 @@ def evaluate(
 ) -> EvalResult:
     """Evaluate denoised EXR files (and their noisy inputs) against reference EXR(s).
 
-    An output whose recorded source (``mcdenoise:source``) shows another scene than its
-    reference (see :func:`same_scene`) is refused, naming both; with ``force`` it is evaluated
-    and ``warn`` (default: ``warnings.warn``) gets the message, which is also noted in the
-    record. Outputs with no recorded source are not checked.
+    An output whose recorded source (``mcdenoise:source``) records another scene than its
+    reference does (see :func:`same_scene`) is refused, naming both; with ``force`` it is
+    evaluated and ``warn`` (default: ``warnings.warn``) gets the message, which is also noted
+    in the record. Where either side records no scene (no recorded source, files without
+    ``mcdenoise:scene`` headers) the pairing the caller gave stands.
 
     Args:
         reference: a reference EXR, or a folder of reference EXRs (matched to each output by
@@ -459,9 +459,9 @@ def evaluate(
 
     Raises:
         InputError: a path does not exist, an output matches no reference (the message names
-            it), an output is a reference, an output's source shows another scene (without
-            ``force``), or an image differs in size from its reference (the message names
-            both files and sizes).
+            it), an output is a reference, an output's source records another scene
+            (without ``force``), or an image differs in size from its reference (the message
+            names both files and sizes).
         mcdenoise.errors.ExrError: an EXR cannot be read.
     """
     result = _new_result(metrics)
@@ -585,16 +585,18 @@ def evaluate(
 
 
 def _scene_mismatch(meta: _Meta, ref: Path, ref_ids: dict[Path, dict[str, str]]) -> str | None:
-    """Why ``meta``'s output does not show the scene of reference ``ref``, or ``None``."""
+    """Why ``meta``'s output cannot show the scene of reference ``ref`` (a scene, image or
+    frame that both headers record differently, see :func:`same_scene`), or ``None``."""
     if ref not in ref_ids:
         ref_ids[ref] = _probe(ref).identity
-    identity, stem = _source_identity(meta)
-    if same_scene(ref_ids[ref], identity, ref.stem, stem):
+    identity = _source_identity(meta)
+    keys = _conflicts(ref_ids[ref], identity)
+    if not keys:
         return None
     return (
         f"output {meta.path} was made from {meta.source} "
-        f"({_describe_scene(identity, stem)}) but the reference {ref} shows "
-        f"{_describe_scene(ref_ids[ref], ref.stem)}"
+        f"({_describe_scene(identity, keys)}) but the reference {ref} shows "
+        f"{_describe_scene(ref_ids[ref], keys)}"
     )
 
 
