@@ -36,13 +36,13 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from torch import Tensor
-from tqdm import tqdm
 
 from mcdenoise.errors import InputError, McdenoiseError
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.exr import probe_exr
 from mcdenoise.losses import relmse, relmse_map
+from mcdenoise.progress import Mode, progress_bar
 
 #: Key of the reference colour in a prepared item.
 REFERENCE = "reference"
@@ -177,7 +177,7 @@ def load_items(
     prepare: Prepare,
     *,
     min_size: int = 1,
-    progress: bool = False,
+    progress: Mode = False,
 ) -> tuple[list[Item], LoadReport]:
     """Read and prepare every entry; unusable ones are reported, not raised.
 
@@ -186,13 +186,15 @@ def load_items(
         prepare: model hook ``(buffers, reference (3, H, W)) -> {name: (C, H, W)}``; it may raise
             :class:`~mcdenoise.errors.McdenoiseError` (e.g. a missing buffer) to skip a level.
         min_size: smallest acceptable image edge (patch + margins).
-        progress: show a tqdm bar.
+        progress: report the loading on stderr (:func:`mcdenoise.progress.progress_bar`:
+            a bar on a terminal, a line per stage in a log).
     """
     report = LoadReport()
     items: list[Item] = []
     refs: dict[Path, Tensor] = {}
     keys: tuple[str, ...] | None = None
-    for e in tqdm(entries, desc="loading", unit="level", disable=not progress, leave=False):
+    bar = progress_bar(entries, desc="loading", unit="level", progress=progress, leave=False)
+    for e in bar:
         try:
             if e.reference not in refs:
                 refs = {e.reference: load_buffers(e.reference)["color"]}
@@ -226,7 +228,7 @@ def load_items(
 
 
 def load_split(
-    cfg: Any, prepare: Prepare, *, crop: int, progress: bool = False
+    cfg: Any, prepare: Prepare, *, crop: int, progress: Mode = False
 ) -> tuple[list[Item], list[Item], LoadReport]:
     """Scan ``cfg.data``, split by image (``cfg.val_fraction``, ``cfg.seed``, ``cfg.max_images``)
     and prepare both parts: ``(train items, validation items, report of both)``. Training images

@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import torch
-from tqdm import tqdm
 
 from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import new_model
+from mcdenoise.progress import Mode, progress_bar
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.dataset import Item, image_relmse
 
@@ -82,7 +82,7 @@ def grid_search(
     items: Sequence[Item],
     grid: Mapping[str, Sequence[Any]] | None = None,
     *,
-    progress: bool = False,
+    progress: Mode = False,
 ) -> GridResult:
     """Evaluate every grid point on every item; the best per spp level.
 
@@ -91,6 +91,8 @@ def grid_search(
         items: prepared whole images (from :func:`~mcdenoise.train.dataset.load_items` with
             :func:`~mcdenoise.prep.kalantari.prepare_item`), with ``reference``.
         grid: setting name -> values (default :data:`GRIDS`).
+        progress: report the search on stderr (:func:`mcdenoise.progress.progress_bar`: a
+            bar on a terminal, a line per stage in a log).
     """
     grid = {k: list(v) for k, v in (grid or GRIDS[kind]).items()}
     kind = "xbf" if kind == "xbf2" else kind
@@ -102,7 +104,8 @@ def grid_search(
     result = GridResult(kind, grid)
     levels = sorted({it.entry.spp or 0 for it in items})
     combos = list(itertools.product(*(grid[k] for k in keys)))
-    for values in tqdm(combos, desc=f"grid {kind}", disable=not progress, leave=False):
+    bar = progress_bar(combos, desc=f"grid {kind}", unit="setting", progress=progress, leave=False)
+    for values in bar:
         settings = dict(zip(keys, values, strict=True))
         model = new_model(kind, guides, with_var, stats, [1], settings)
         errs: dict[int, list[float]] = {lv: [] for lv in levels}
