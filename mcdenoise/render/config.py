@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.errors import McdenoiseError
+from mcdenoise.progress import Mode
 
 #: Largest number of samples per pixel of one render call (one pass).
 DEFAULT_PASS_SPP = 128
@@ -41,7 +42,9 @@ class RenderConfig:
         pass_spp: most samples per pixel of one render call.
         seed: base seed; each image's seed is derived from it and the image id.
         compression: EXR compression of every file.
-        progress: show a tqdm progress bar (stderr).
+        progress: progress on stderr, a :data:`mcdenoise.progress.Mode`: ``True``/``"auto"``
+            (a bar on a terminal, plain lines in a log), ``"bar"``, ``"lines"``,
+            ``False``/``"off"`` (see :func:`mcdenoise.progress.progress_bar`).
         frames: ``None`` for still images, else every job is a sequence of this many frames
             (>= 2).
     """
@@ -56,7 +59,7 @@ class RenderConfig:
     pass_spp: int = DEFAULT_PASS_SPP
     seed: int = 0
     compression: str = "zip"
-    progress: bool = False
+    progress: Mode = False
     frames: int | None = None
 
     def __post_init__(self) -> None:
