@@ -25,8 +25,9 @@ from tqdm import tqdm
     default="auto",
     show_default=True,
     help="Method (see `mcdenoise methods`, which lists the aliases too, e.g. xbf for "
-    "cross-bilateral), a comma-separated list, 'all' (every available method), or 'auto' "
-    "(the best available).",
+    "cross-bilateral), a comma-separated list, 'all' (every available method; one that "
+    "cannot run on an input is skipped there, with the reason), or 'auto' (the best "
+    "available method that accepts the input: --verbose says which and why).",
 )
 @click.option(
     "-p",
@@ -63,6 +64,13 @@ from tqdm import tqdm
 )
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON record per output.")
 @click.option(
+    "-v",
+    "--verbose",
+    is_flag=True,
+    help="Say on stderr which method each input got and, with the default (auto), which "
+    "better-ranked methods were skipped for it and why.",
+)
+@click.option(
     "--progress/--no-progress",
     default=True,
     help="Progress on stderr with several outputs: a bar on a terminal, a few plain lines in "
@@ -82,6 +90,7 @@ def denoise(
     half,
     compression,
     as_json,
+    verbose,
     progress,
 ):
     """Denoise INPUTS (EXR files or folders of them) and write EXR outputs.
@@ -108,6 +117,9 @@ def denoise(
     except dn.OptionError as err:
         raise click.UsageError(str(err)) from None
     for outcome in outcomes:  # results on stdout, "skipped ..." on stderr
+        if verbose:
+            for line in outcome.choice_lines():
+                tqdm.write(line, file=sys.stderr)
         if outcome.result is None:
             tqdm.write(outcome.summary(), file=sys.stderr)
         elif as_json:
@@ -139,4 +151,8 @@ def methods_cmd():
             ps = ", ".join(f"{k}={v}" for k, v in m.defaults.items())
             click.echo(f"{'':<18} parameters: {ps}")
     if best:
-        click.echo(f"\ndefault (no --method): {best}")
+        click.echo(
+            "\ndefault (no --method): the first available method above that accepts the "
+            f"input ({best} for one with every buffer and its variance; "
+            "`mcdenoise denoise --verbose` says which and why)"
+        )

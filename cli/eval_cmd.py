@@ -8,6 +8,29 @@ import click
 from mcdenoise_cli.options import threads_option
 
 
+def metrics_help() -> str:
+    """The ``--metrics`` help, from the registered metrics (:data:`mcdenoise.eval.metrics.METRICS`)."""
+    from mcdenoise.eval.metrics import METRICS, PARTS
+
+    names = ",".join(n for n, m in METRICS.items() if m.part_of is None)
+    parts = "".join(f"; {k} also gives {','.join(v)}" for k, v in PARTS.items())
+    optional = ",".join(n for n, m in METRICS.items() if m.optional)
+    extra = f"; {optional} only when its package is installed" if optional else ""
+    return (
+        f"Comma-separated metrics (default: all: {names}{parts}{extra}; with --experiment: "
+        "the spec's)."
+    )
+
+
+class _MetricsOption(click.Option):
+    """``--metrics``, whose help lists the registered metrics: built when the help is shown,
+    so the command starts without loading the metrics (and torch)."""
+
+    def get_help_record(self, ctx: click.Context):
+        self.help = metrics_help()
+        return super().get_help_record(ctx)
+
+
 @click.command("eval")
 @threads_option(expose=True)
 @click.argument("outputs", nargs=-1, type=click.Path())
@@ -37,13 +60,7 @@ from mcdenoise_cli.options import threads_option
     help="Folder for report.html, results.json and results.csv (with --experiment: also the "
     "rendered data, denoised outputs and the resumable work records).",
 )
-@click.option(
-    "--metrics",
-    default=None,
-    metavar="LIST",
-    help="Comma-separated metrics (default: all available: relmse,smape,mse,psnr,ssim,flip; "
-    "with --experiment: the spec's).",
-)
+@click.option("--metrics", cls=_MetricsOption, default=None, metavar="LIST")
 @click.option(
     "--experiment",
     "experiment",

@@ -4,7 +4,39 @@ from __future__ import annotations
 
 import click
 
-PROFILES = ("auto", "mcdenoise", "mitsuba", "cycles", "pbrt", "tungsten")
+#: The forms ``--profile`` takes, for its help (:func:`profile_forms` of the library's
+#: :data:`mcdenoise.io.profiles.PROFILE_NAMES`, written out so the CLI starts without loading
+#: the library; a test checks they agree). Values are checked by the library's own resolver.
+PROFILE_FORMS = "auto, mcdenoise, mitsuba, cycles, cycles:<Layer>, pbrt, tungsten"
+
+
+class _Profile(click.ParamType):
+    """A renderer profile name as :func:`mcdenoise.io.profiles.get_profile` accepts it
+    (``cycles:<Layer>`` included), or ``auto``; the value is passed on as written."""
+
+    name = "profile"
+
+    def convert(self, value, param, ctx):
+        text = str(value).strip()
+        if text.lower() == "auto":
+            return "auto"
+        from mcdenoise.io.profiles import PROFILE_NAMES, ProfileError, get_profile
+
+        try:
+            get_profile(text)
+        except ProfileError as err:
+            known = text.partition(":")[0].strip().lower() in PROFILE_NAMES
+            why = str(err) if known else f"unknown profile {text!r}"
+            self.fail(f"{why}; valid forms: {profile_forms(PROFILE_NAMES)}", param, ctx)
+        return text
+
+
+def profile_forms(names) -> str:
+    """The forms ``--profile`` takes, given the library's profile names."""
+    forms = ["auto"]
+    for name in names:
+        forms += [name, f"{name}:<Layer>"] if name == "cycles" else [name]
+    return ", ".join(forms)
 
 
 def read_options(f):
@@ -31,10 +63,11 @@ def read_options(f):
     )(f)
     f = click.option(
         "--profile",
-        type=click.Choice(PROFILES),
+        type=_Profile(),
         default="auto",
         show_default=True,
-        help="Renderer channel naming; auto-detected by default.",
+        help="Renderer channel naming, auto-detected by default: one of "
+        f"{PROFILE_FORMS} (a Blender view layer by name: cycles:<Layer>).",
     )(f)
     return f
 

@@ -27,8 +27,11 @@ from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError, sanitize
 from mcdenoise.registry import (
     Method,
+    MethodChoice,
+    aliases,
     available_methods,
     best_method,
+    choose_method,
     get_method,
     methods,
     params_from_strings,
@@ -43,12 +46,14 @@ __all__ = [
     "FileResult",
     "JobOutcome",
     "Method",
+    "MethodChoice",
     "OptionError",
     "ReadOptions",
     "WriteOptions",
     "available_methods",
     "best_method",
     "check_output_folder",
+    "choose_method",
     "collect_inputs",
     "denoise",
     "denoise_file",
@@ -100,11 +105,8 @@ def parse_methods(spec: str) -> list[Method]:
 def method_aliases() -> dict[str, list[str]]:
     """Method name -> its aliases (``{"cross-bilateral": ["cross_bilateral", "xbf"]}``), for
     ``mcdenoise methods`` and the ``--method`` help."""
-    from mcdenoise import registry
-
-    methods()  # the built-ins and their aliases are registered on first use
     table: dict[str, list[str]] = {}
-    for alias, name in sorted(getattr(registry, "_ALIASES", {}).items()):
+    for alias, name in aliases().items():
         table.setdefault(name, []).append(alias)
     return table
 
@@ -178,7 +180,8 @@ def denoise_sequence(
     they are needed); each frame is sanitised, cut to the buffers the method requires or uses,
     and moved to ``device`` when the method asks for it.
 
-    The method (``"auto"``: the best available for the first frame), its availability, the
+    The method (``"auto"``: the best available one that accepts the first frame, see
+    :func:`~mcdenoise.registry.choose_method`), its availability, the
     buffers of the first frame, the parameters and the device are checked before this returns;
     every later frame must hold the required buffers too (``MissingFeatureError`` when it is
     reached). Each result's ``seconds`` is the wall time of the method for that frame, without
@@ -532,7 +535,21 @@ class JobOutcome:
 
     job: DenoiseJob  # method and output resolved
     result: FileResult | None = None
-    skipped: str | None = None  # with --method all: the buffer the method lacked
+    skipped: str | None = None  # with --method all: why the method refused this input
+    #: with --method auto: the better-ranked methods passed over for this input, and why
+    passed_over: tuple[tuple[str, str], ...] = ()
+    auto: bool = False  # the method was chosen for the input (--method auto)
+
+    def choice_lines(self) -> list[str]:
+        """What ``mcdenoise denoise --verbose`` says about the method used for this input."""
+        name = self.job.input.name
+        m = self.job.method
+        lines = [f"{name}: skipped {n}: {reason}" for n, reason in self.passed_over]
+        if m is not None and self.auto:
+            lines.append(f"{name}: chose {m.name} (the best available method that accepts it)")
+        elif m is not None and self.result is not None:
+            lines.append(f"{name}: {m.name} (given by --method)")
+        return lines
 
     def summary(self) -> str:
         """The line ``mcdenoise denoise`` prints for this outcome."""
@@ -557,7 +574,7 @@ class DenoisePlan:
     params: dict[str, Any]  # parameter overrides (one method only)
     output: Path | None  # -o: a file (one output) or a folder (created when run)
     part: str | None  # the level of a multi-part input (part of the output names)
-    skip_missing: bool  # --method all: skip a method whose buffers an input lacks
+    skip_missing: bool  # --method all: skip a method that refuses an input (with the reason)
 
 
 def plan_jobs(
@@ -576,7 +593,8 @@ def plan_jobs(
         output: one output file (one input, one method), a folder, or ``None`` (outputs beside
             the inputs); names as in :func:`plan_outputs`.
         method: ``auto`` (the best method for each input, chosen when it is read), ``all``
-            (every available method; one that lacks a buffer of an input is skipped there), a
+            (every available method; one that refuses an input, see
+            :meth:`Method.accepts <mcdenoise.method.Method.accepts>`, is skipped there), a
             name or a comma-separated list.
         params: parameter overrides (one method only; not with ``auto`` unless ``model``
             names the method).
@@ -640,7 +658,6 @@ def run_jobs(
     written; with ``progress`` (see :func:`mcdenoise.progress.progress_bar`: a bar on a
     terminal, lines in a log) the jobs are counted on stderr when there are several.
     """
-    from mcdenoise.io import load_buffers
     from mcdenoise.progress import progress_bar
 
     read = read or ReadOptions()
@@ -656,20 +673,24 @@ def run_jobs(
     try:
         for job in plan.jobs:
             buffers = None
-            if job.method is None:
-                buffers = load_buffers(
-                    job.input,
-                    profile=read.profile,
-                    mapping=read.mapping,
-                    part=read.part,
-                    spp=read.spp,
-                )
-                m = best_method(buffers)
-                dst = plan_outputs([job.input], out, m.name, part=plan.part)[0]
-                job = DenoiseJob(job.input, dst, m)
+            passed_over: tuple[tuple[str, str], ...] = ()
+            auto = job.method is None
+            if auto:
+                buffers = _load(job.input, read)
+                choice = choose_method(buffers)
+                passed_over = choice.skipped
+                dst = plan_outputs([job.input], out, choice.method.name, part=plan.part)[0]
+                job = DenoiseJob(job.input, dst, choice.method)
             assert job.method is not None and job.output is not None
             bar.set_postfix_str(f"{job.input.name} {job.method.name}")
             try:
+                if plan.skip_missing:  # --method all: a method that refuses is skipped
+                    buffers = _load(job.input, read)
+                    reason = job.method.accepts(buffers, plan.params)
+                    if reason is not None:
+                        bar.update(1)
+                        yield JobOutcome(job, skipped=reason)
+                        continue
                 res = denoise_file(
                     job.input,
                     job.output,
@@ -687,9 +708,17 @@ def run_jobs(
                 yield JobOutcome(job, skipped=str(err))
                 continue
             bar.update(1)
-            yield JobOutcome(job, res)
+            yield JobOutcome(job, res, passed_over=passed_over, auto=auto)
     finally:
         bar.close()
+
+
+def _load(path: Path, read: ReadOptions) -> FeatureBuffers:
+    from mcdenoise.io import load_buffers
+
+    return load_buffers(
+        path, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
+    )
 
 
 def denoise_paths(

@@ -39,6 +39,9 @@ RunFn = Callable[[FeatureBuffers, Mapping[str, Any], torch.device], torch.Tensor
 SequenceFn = Callable[
     [Iterable[FeatureBuffers], Mapping[str, Any], torch.device], Iterator[torch.Tensor]
 ]
+#: ``check_input(buffers, params) -> None`` when the method can run on ``buffers`` with
+#: ``params`` (its defaults updated), else the reason it cannot, one line.
+CheckFn = Callable[[FeatureBuffers, Mapping[str, Any]], str | None]
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,10 @@ class Method:
             of one sequence (in order) yielding one ``(3, H, W)`` output per frame. Required
             when ``temporal``; a per-frame method leaves it ``None`` and
             :meth:`run_frames` runs ``run`` on each frame.
+        check_input: ``check_input(buffers, params) -> str | None``: what the method needs
+            beyond ``requires`` (a learned method: what its model was trained with, e.g. the
+            variances of its guides); ``None`` when it can run, else the reason, one line.
+            It looks at which buffers are present, not at their pixels. See :meth:`accepts`.
     """
 
     name: str
@@ -77,6 +84,7 @@ class Method:
     devices: tuple[str, ...] = ("cpu", "cuda")
     temporal: bool = False
     run_sequence: SequenceFn | None = None
+    check_input: CheckFn | None = None
 
     def __post_init__(self) -> None:
         if self.temporal and self.run_sequence is None:
@@ -94,6 +102,24 @@ class Method:
         run = self.run
         assert run is not None  # __post_init__
         return (run(f, params, device) for f in frames)
+
+    def accepts(
+        self, buffers: FeatureBuffers, params: Mapping[str, Any] | None = None
+    ) -> str | None:
+        """``None`` when the method can denoise ``buffers`` with ``params`` (overrides of its
+        defaults), else why not, one line: a buffer of ``requires`` missing, or the method's
+        own :attr:`check_input` (e.g. a model trained with variances the input does not have).
+
+        The default method (:func:`mcdenoise.registry.choose_method`) skips a method that
+        refuses, and ``--method all`` skips it on that input, with this reason.
+        """
+        missing = [r for r in self.requires if r not in buffers]
+        if missing:
+            have = ", ".join(sorted(buffers.buffers)) or "nothing"
+            return f"needs {', '.join(missing)}; the input has {have}"
+        if self.check_input is None:
+            return None
+        return self.check_input(buffers, self.resolve_params(params))
 
     def resolve_params(self, overrides: Mapping[str, Any] | None) -> dict[str, Any]:
         """Defaults updated with ``overrides`` (strings coerced to the default's type)."""
@@ -148,6 +174,7 @@ def dataclass_defaults(cls: type) -> dict[str, Any]:
 
 
 __all__ = [
+    "CheckFn",
     "Method",
     "RunFn",
     "SequenceFn",

@@ -1,5 +1,11 @@
 """The table of denoising methods: register, list, look up, choose the default.
 
+The default for an input (:func:`choose_method`, :func:`best_method`) is the first method,
+best first (priority, then name), that is available here and accepts the input
+(:meth:`Method.accepts <mcdenoise.method.Method.accepts>`: its required buffers are present and
+its own check, e.g. what a learned model was trained with, passes); the methods passed over
+are kept with the reason, which ``mcdenoise denoise --verbose`` prints.
+
 What a method is (per-frame or temporal) is :class:`~mcdenoise.method.Method`, re-exported
 here. The built-in methods are loaded explicitly on first use of the table
 (:func:`mcdenoise.methods.builtin_methods`), so :func:`methods` lists the same methods in the
@@ -14,10 +20,12 @@ Adding a method::
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import (
+    CheckFn,
     Method,
     RunFn,
     SequenceFn,
@@ -26,11 +34,15 @@ from mcdenoise.method import (
 )
 
 __all__ = [
+    "CheckFn",
     "Method",
+    "MethodChoice",
     "RunFn",
     "SequenceFn",
+    "aliases",
     "available_methods",
     "best_method",
+    "choose_method",
     "dataclass_defaults",
     "get_method",
     "methods",
@@ -96,9 +108,51 @@ def available_methods() -> list[Method]:
     return [m for m in methods() if m.unavailable() is None]
 
 
+def aliases() -> dict[str, str]:
+    """Every alias and the method it names (``{"xbf": "cross-bilateral", ...}``), sorted."""
+    _ensure_builtins()
+    return dict(sorted(_ALIASES.items()))
+
+
+@dataclass(frozen=True)
+class MethodChoice:
+    """The default method for one input and the better-ranked methods passed over.
+
+    Attributes:
+        method: the first method, best first, that is available and accepts the input.
+        skipped: ``(name, reason)`` of each method ranked above it, in rank order: not
+            available here, or refusing the input (:meth:`Method.accepts`).
+    """
+
+    method: Method
+    skipped: tuple[tuple[str, str], ...] = ()
+
+
+def choose_method(buffers: FeatureBuffers) -> MethodChoice:
+    """The default method for ``buffers``: the best available one that accepts them.
+
+    Raises:
+        InputError: no method accepts the input (the message gives each one's reason).
+    """
+    skipped: list[tuple[str, str]] = []
+    for m in methods():
+        reason = m.unavailable()
+        if reason is not None:
+            skipped.append((m.name, f"not available here: {reason}"))
+            continue
+        reason = m.accepts(buffers)
+        if reason is None:
+            return MethodChoice(m, tuple(skipped))
+        skipped.append((m.name, reason))
+    why = "; ".join(f"{name}: {reason}" for name, reason in skipped) or "no method registered"
+    raise InputError(f"no denoising method can run on this input ({why})")
+
+
 def best_method(buffers: FeatureBuffers | None = None) -> Method:
-    """The best available method (for ``buffers``: one whose required buffers are present)."""
+    """The default method for ``buffers`` (:func:`choose_method`); without ``buffers``, the
+    best available method (what an input with every buffer and its variance gets)."""
+    if buffers is not None:
+        return choose_method(buffers).method
     for m in available_methods():
-        if buffers is None or all(r in buffers for r in m.requires):
-            return m
-    raise InputError("no denoising method can run on this input")
+        return m
+    raise InputError("no denoising method is available here")

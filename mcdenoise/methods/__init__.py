@@ -28,13 +28,19 @@ filter or model -> output) without registering it; :mod:`mcdenoise.registry` add
 :func:`builtin_methods` to its table on first use, so the listing never depends on which
 module happened to be imported first.
 
-The default method (no ``--method``) is the available one with the highest priority whose
-required buffers the input has. The learned filters rank first, kalantari-xbf above
-kalantari-nlm; kalantari-xbf serves inputs without albedo with its shipped no-albedo variant.
-Inputs without depth or position go to kpcn when they have albedo and normal, else to nlm.
-OIDN is deliberately never the default: mcdenoise's own methods are what it reports on, OIDN
-is the baseline they are compared with. The measurements behind this order are in
-``docs/results/methods-notes.md``.
+The default method (no ``--method``) is the first available one, by priority, that accepts
+the input (:meth:`~mcdenoise.method.Method.accepts`: the buffers it requires, then its own
+``check_input``; :func:`mcdenoise.registry.choose_method`). The learned filters rank first,
+kalantari-xbf above kalantari-nlm; they accept an input only with every guide *and guide
+variance* their model was trained with (the shipped models: albedo, normal, depth, position
+and their variances; kalantari-xbf serves inputs without albedo with its shipped no-albedo
+variant). They do not estimate missing variances (a file without them has no per-sample
+information, and an estimate from the image would be outside their training data): inputs
+without them -- plain Mitsuba ``aov`` files, Cycles, pbrt -- are passed over with the reason,
+which ``mcdenoise denoise --verbose`` prints, and go to kpcn when they have albedo and normal,
+else to nlm, which runs on colour alone. OIDN is deliberately never the default: mcdenoise's
+own methods are what it reports on, OIDN is the baseline they are compared with. The
+measurements behind this order are in ``docs/results/methods-notes.md``.
 """
 
 from __future__ import annotations

@@ -6,6 +6,13 @@ refusing an input without a guide the model was trained with) and runs it
 (:meth:`~mcdenoise.models.kalantari.KalantariModel.denoise_item`). The ``model`` parameter is a
 run folder or model file, default the shipped weights (:mod:`mcdenoise.models.weights`); an
 input without albedo gets the shipped no-albedo variant where there is one.
+
+A model needs every guide it was trained with and, for each guide it was trained with the
+variance of, that variance (the shipped models: all four guides with their variances, the
+no-albedo variant three). The methods' :attr:`~mcdenoise.method.Method.check_input` asks the
+model that would run (:func:`model_for`) and refuses, with the reason, an input without them
+(e.g. a plain Mitsuba ``aov`` file, which has no variances), so the default method passes it
+over instead of failing.
 """
 
 from __future__ import annotations
@@ -18,7 +25,7 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES
-from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.method import Method
 from mcdenoise.methods.cross_bilateral import GUIDE_VARS
 from mcdenoise.models.kalantari import KalantariModel
@@ -29,7 +36,7 @@ from mcdenoise.models.weights import (
     shipped_model_for,
     shipped_model_path,
 )
-from mcdenoise.prep.kalantari import prepare_for_model
+from mcdenoise.prep.kalantari import check_inputs, prepare_for_model
 
 
 def denoise_kalantari(
@@ -44,15 +51,44 @@ def denoise_kalantari(
     return model.denoise_item(item, chunk_rows=chunk_rows)
 
 
+def model_for(kind: str, buffers: FeatureBuffers, model: str) -> KalantariModel:
+    """The model ``kalantari-<kind>`` runs on ``buffers`` for its ``model`` parameter: the
+    shipped weights chosen for the buffers present, or the given model file / run folder.
+
+    Raises:
+        InputError: ``model`` is a model of the other kind. CheckpointError: no such model.
+    """
+    shipped = model in ("", SHIPPED)
+    path = shipped_model_for(f"kalantari-{kind}", set(buffers.buffers)) if shipped else model
+    loaded = load_kalantari(path)
+    if loaded.card.kind != kind:
+        raise InputError(f"{model}: is a kalantari-{loaded.card.kind} model, not kalantari-{kind}")
+    return loaded
+
+
+def _checker(kind: str) -> Callable[[FeatureBuffers, Mapping[str, Any]], str | None]:
+    def check(b: FeatureBuffers, params: Mapping[str, Any]) -> str | None:
+        model = model_for(kind, b, str(params["model"]))
+        try:
+            check_inputs(model.card, b)  # what prepare_for_model refuses, before any work
+        except MissingFeatureError as err:
+            name = str(params["model"])
+            which = "the shipped model" if name in ("", SHIPPED) else f"model {name}"
+            card = model.card
+            trained = ", ".join(card.guides)
+            if set(card.guide_vars) == set(card.guides):
+                trained += " and their variances"
+            elif card.guide_vars:
+                trained += f" and the variances of {', '.join(card.guide_vars)}"
+            return f"needs {', '.join(err.missing)} ({which} was trained with {trained})"
+        return None
+
+    return check
+
+
 def _runner(kind: str) -> Callable[[FeatureBuffers, Mapping[str, Any], torch.device], Tensor]:
     def run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
-        name = str(params["model"])
-        shipped = shipped_model_for(f"kalantari-{kind}", set(b.buffers))
-        model = load_kalantari(shipped if name in ("", SHIPPED) else name)
-        if model.card.kind != kind:
-            raise InputError(
-                f"{params['model']}: is a kalantari-{model.card.kind} model, not kalantari-{kind}"
-            )
+        model = model_for(kind, b, str(params["model"]))
         return denoise_kalantari(model.to(device), b)
 
     return run
@@ -71,10 +107,11 @@ def _method(kind: str, what: str, priority: int) -> Method:
         defaults={"model": SHIPPED},
         run=_runner(kind),
         priority=priority,
+        check_input=_checker(kind),
     )
 
 
 XBF = _method("xbf", "cross-bilateral bandwidths", 30)
 NLM = _method("nlm", "NLM k and feature k_f", 25)
 
-__all__ = ["NLM", "XBF", "denoise_kalantari"]
+__all__ = ["NLM", "XBF", "denoise_kalantari", "model_for"]

@@ -5,7 +5,9 @@
 (:func:`~mcdenoise.prep.kpcn.prepare_tensors`) and runs the network tile by tile
 (:meth:`~mcdenoise.models.kpcn.KpcnModel.denoise_tensors`). The ``model`` parameter is a run
 folder or model file, default the shipped weights; the method ranks below the learned filters
-and above ``nlm`` when those weights are installed, else last.
+and above ``nlm`` when those weights are installed, else last. Its
+:attr:`~mcdenoise.method.Method.check_input` refuses, with the reason, an input none of whose
+sources the model was trained with has all the buffers of.
 """
 
 from __future__ import annotations
@@ -21,9 +23,10 @@ from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method
 from mcdenoise.methods.cross_bilateral import GUIDE_VARS
+from mcdenoise.models.encoders import SOURCES
 from mcdenoise.models.kpcn import STRIP, TILE, KpcnModel
 from mcdenoise.models.weights import SHIPPED, load_kpcn, shipped_model_path
-from mcdenoise.prep.kpcn import prepare_tensors, source_for
+from mcdenoise.prep.kpcn import choose_source, prepare_tensors, source_for
 
 
 @torch.no_grad()
@@ -52,7 +55,7 @@ def denoise_kpcn(
     return model.denoise_tensors(t, src, tile=tile, strip=strip)[0]
 
 
-def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
+def _model(params: Mapping[str, Any]) -> KpcnModel:
     name = str(params["model"])
     if name in ("", SHIPPED):
         path = shipped_model_path("kpcn")
@@ -60,7 +63,28 @@ def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> 
             raise InputError("kpcn: no shipped weights in this install; pass -p model=RUN_FOLDER")
     else:
         path = name
-    model = load_kpcn(path).to(device)
+    return load_kpcn(path)
+
+
+def _check(b: FeatureBuffers, params: Mapping[str, Any]) -> str | None:
+    name = str(params["model"])
+    if name in ("", SHIPPED) and not shipped_model_path("kpcn").is_file():
+        return "no shipped weights in this install (pass -p model=RUN_FOLDER)"
+    trained = _model(params).card.sources
+    source = str(params["source"])
+    if source != "auto" and source not in trained:
+        return f"the model has no '{source}' source ({', '.join(trained)})"
+    wanted = list(trained) if source == "auto" else [source]
+    if choose_source(set(b.buffers), wanted) is not None:
+        return None
+    needs = " or ".join(
+        f"{s} ({', '.join(x for x in SOURCES[s] if x not in b)})" for s in wanted if s in SOURCES
+    )
+    return f"needs the buffers of a source the model was trained with: {needs}"
+
+
+def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
+    model = _model(params).to(device)
     source = str(params["source"])
     return denoise_kpcn(
         model, b, source=None if source == "auto" else source, tile=int(params["tile"])
@@ -75,6 +99,7 @@ METHOD = Method(
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
     defaults={"model": SHIPPED, "source": "auto", "tile": 1024},
     run=_run,
+    check_input=_check,
     priority=22 if shipped_model_path("kpcn").is_file() else -1,
 )
 
