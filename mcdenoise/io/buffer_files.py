@@ -15,11 +15,20 @@ present in two parts must be disambiguated with ``part=``); ``part="name"`` or a
 restricts the search to that part. Exception: a file whose parts are *each* a complete image in
 the ``mcdenoise`` layout (every part carries ``mcdenoise:layout``, as written by
 :func:`save_buffers_parts`, e.g. the spp levels ``spp4``, ``spp16``, ... of ``mcdenoise
-render``) defaults to its first part.
+render``) defaults to its first part. In a Blender file (``BlenderMultiChannel`` in part 0;
+Blender 5 writes one part ``<Layer>.<Pass>`` per pass), ``part`` names a view layer
+(``"ViewLayer"``) or any part of one, and selects every part of that layer; Blender's
+file-wide header attributes (``cycles.<Layer>.samples``...), written in part 0 only, are read
+whatever part is chosen.
+
+Conventions of the renderer that differ from the canonical ones (planar depth, camera-space
+normals, albedo out of range) are logged as warnings (logger ``mcdenoise.io.buffer_files``)
+and kept in the notes (``attributes["_notes"]``, ``mcdenoise info``).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -42,6 +51,7 @@ from mcdenoise.io.exr import (
 )
 from mcdenoise.io.limits import check_pixel_limit, check_read_size
 from mcdenoise.io.profiles import (
+    BLENDER_ATTR,
     LAYOUT_ATTR,
     LAYOUT_VERSION,
     SPP_ATTR,
@@ -49,8 +59,11 @@ from mcdenoise.io.profiles import (
     Profile,
     assemble,
     canonical_channels,
+    cycles_layers,
     resolve_channels,
 )
+
+log = logging.getLogger(__name__)
 
 MappingArg = str | os.PathLike[str] | Mapping[str, Any] | None
 
@@ -90,17 +103,25 @@ def read_buffers(
     max_pixels: int | None = None,
     strict: bool = True,
     max_read_bytes: int | None = None,
+    warn: bool = True,
 ) -> LoadResult:
     """Like :func:`load_buffers`, but return the resolution details too.
 
     ``strict=False`` records a missing ``color`` or an incomplete feature in
     ``channel_map.problems`` instead of raising (used by :func:`mcdenoise.io.describe`).
+    ``warn=False`` leaves the profile's convention warnings in ``notes`` only (not logged).
     """
     src = str(path)
     parts = probe_exr(path)
     if part is None and len(parts) > 1 and all(LAYOUT_ATTR in p.attributes for p in parts):
         part = 0  # every part is a complete mcdenoise image (spp levels): the first one
-    searched = [select_part(parts, part, src)] if part is not None else parts
+    blender = BLENDER_ATTR in parts[0].attributes
+    if part is None:
+        searched = parts
+    elif blender:
+        searched = _blender_layer_parts(parts, part, src)
+    else:
+        searched = [select_part(parts, part, src)]
     owner: dict[str, int] = {}
     duplicated: dict[str, list[int]] = {}
     for p in searched:
@@ -112,6 +133,9 @@ def read_buffers(
     attributes: dict[str, Any] = {}
     for p in reversed(searched):  # the first part wins on conflicting attributes
         attributes.update(p.attributes)
+    if blender:  # Blender writes its file-wide attributes (samples, ...) in part 0 only
+        for k, v in parts[0].attributes.items():
+            attributes.setdefault(k, v)
     names = list(owner)
 
     cmap = resolve_channels(
@@ -150,7 +174,10 @@ def read_buffers(
         )
         pixels.update(got.pixels)
     built = assemble(cmap, pixels)
-    notes = cmap.notes + built.notes
+    notes = cmap.notes + built.notes + built.warnings
+    if warn:
+        for w in built.warnings:
+            log.warning("%s: %s", src, w)
 
     ref = parts[used[0]] if used else searched[0]
     scalar_attrs = {k: v for k, v in attributes.items() if isinstance(v, (str, int, float))}
@@ -168,6 +195,26 @@ def read_buffers(
         display_window=ref.display_window,
     )
     return LoadResult(fb, cmap, parts, used, notes)
+
+
+def _blender_layer_parts(parts: list[ExrPart], part: str | int, src: str) -> list[ExrPart]:
+    """Every part of the view layer ``part`` names, in a Blender file of one part per pass.
+
+    ``part`` is a layer name (``"ViewLayer"``), or a part (``"ViewLayer.Combined"`` or an
+    index) whose channels are one layer's: reading that part alone would drop the layer's
+    other passes (Blender 5 writes ``<Layer>.<Pass>`` parts).
+    """
+    layer_of = {p.index: set(cycles_layers(p.channel_names)) for p in parts}
+    all_layers = {name for names in layer_of.values() for name in names}
+    if isinstance(part, str) and part in all_layers and not any(p.name == part for p in parts):
+        layer = part
+    else:
+        chosen = select_part(parts, part, src)
+        layers = layer_of[chosen.index]
+        if len(layers) != 1:
+            return [chosen]
+        layer = next(iter(layers))
+    return [p for p in parts if layer_of[p.index] == {layer}]
 
 
 def load_buffers(
@@ -189,6 +236,7 @@ def load_buffers(
         mapping: a TOML/JSON mapping file or dict (buffer -> channel names, ``spp``,
             ``variance``) overriding the profile for the buffers it names.
         part: restrict to one part (name or index); default: search every part by name.
+            In a Blender file: a view layer name, or a part of a layer (all of its parts).
         spp: samples per pixel of the colour, if the file does not record it (needed to turn
             moments or per-sample variances into variances of the mean).
         max_pixels: refuse larger data windows (default ``$MCDENOISE_MAX_PIXELS`` or 200 MP).

@@ -10,14 +10,20 @@ name           C   meaning
 color          3   noisy radiance, linear HDR RGB, the mean of ``spp`` samples
 albedo         3   first-hit reflectance ("texture"), linear RGB, usually in [0, 1]
 normal         3   first-hit shading normal, world space, components in [-1, 1]
-depth          1   distance from the camera to the first hit (scene units; Mitsuba's ``T``)
+depth          1   distance from the camera to the first hit along the ray (scene units;
+                   Mitsuba's ``T``; not the planar camera z)
 position       3   first-hit world position (scene units)
 diffuse        3   diffuse part of ``color`` (optional extra)
 specular       3   specular part of ``color`` (optional extra)
 visibility     1   direct-light visibility in [0, 1] (optional extra)
-motion         2   screen-space motion to the previous frame, pixels (x right, y down)
+motion         2   screen-space motion to the previous frame, pixels (x right, y down):
+                   the surface seen at pixel p was at ``p + motion`` in frame t - 1
 motion_valid   1   1 where ``motion`` can be trusted (no disocclusion/edge), else 0
+motion_next    2   screen-space motion to the next frame, pixels (x right, y down): the
+                   surface seen at pixel p will be at ``p + motion_next`` in frame t + 1
 =============  ==  ====================================================================
+
+Where the camera ray escapes (background), ``depth``, ``position`` and ``normal`` are 0.
 
 For every name ``f`` above, ``f + "_var"`` holds the per-pixel **variance of the mean** of that
 buffer (same channel count, or 1 channel for a luminance variance), i.e. the sample variance
@@ -51,6 +57,7 @@ FEATURES: dict[str, int] = {
     "visibility": 1,
     "motion": 2,
     "motion_valid": 1,
+    "motion_next": 2,
 }
 #: Suffix of variance buffers: ``color_var`` is the variance of the mean of ``color``.
 VAR_SUFFIX = "_var"

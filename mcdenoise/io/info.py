@@ -197,6 +197,7 @@ def describe(
             max_pixels=max_pixels,
             strict=False,
             max_read_bytes=max_read_bytes,
+            warn=False,
         )
     except ProfileError as e:
         parts = probe_exr(path)

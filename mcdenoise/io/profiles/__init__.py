@@ -37,7 +37,7 @@ from mcdenoise.io.profiles.base import (
     Profile,
     ProfileError,
 )
-from mcdenoise.io.profiles.cycles import CyclesProfile, cycles_layers
+from mcdenoise.io.profiles.cycles import BLENDER_ATTR, CyclesProfile, cycles_layers
 from mcdenoise.io.profiles.detect import (
     DETECTION_ORDER,
     PROFILE_NAMES,
@@ -59,6 +59,7 @@ from mcdenoise.io.profiles.resolve import assemble, resolve_channels, resolve_sp
 from mcdenoise.io.profiles.tungsten import TungstenProfile
 
 __all__ = [
+    "BLENDER_ATTR",
     "DETECTION_ORDER",
     "LAYOUT_ATTR",
     "LAYOUT_VERSION",

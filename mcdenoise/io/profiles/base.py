@@ -78,12 +78,32 @@ class BufferSource:
         m2: second-moment channels (``moments`` only), parallel to ``channels``.
         luminance_of: ``moments`` only: RGB channels whose luminance must equal ``channels[0]``
             on load, or the source is rejected (how Mitsuba's colour moments are matched).
+        scale: per-channel factors applied after ``op`` (a sign flip of a renderer's axis,
+            e.g. Blender's ``Vector.Y``, y up, into the canonical y down); empty = none.
+        far: values at or above this are the renderer's "no hit" marker and become 0, the
+            canonical value where the camera ray escapes (Blender's ``Depth.Z`` = 1e10).
+        note: the source differs from the canonical convention in a way no conversion can
+            fix (e.g. planar instead of along-the-ray depth): reported on load.
+        expect_max: values above this are outside what the buffer's canonical meaning allows
+            (e.g. an albedo above 1): counted and reported on load, kept as stored.
+        expect_why: why such values occur, appended to that report.
     """
 
     channels: tuple[str, ...]
     op: str = "copy"
     m2: tuple[str, ...] = ()
     luminance_of: tuple[str, ...] = ()
+    scale: tuple[float, ...] = ()
+    far: float | None = None
+    note: str = ""
+    expect_max: float | None = None
+    expect_why: str = ""
+
+    def __post_init__(self) -> None:
+        if self.scale and len(self.scale) != len(self.channels):
+            raise ValueError(
+                f"scale has {len(self.scale)} factors for {len(self.channels)} channels"
+            )
 
     def file_channels(self) -> tuple[str, ...]:
         return self.channels + self.m2 + self.luminance_of
@@ -92,10 +112,16 @@ class BufferSource:
         """One-line description, e.g. ``"(m2 - m1^2)/(spp-1) of img.path.Y"``."""
         ch = ", ".join(self.channels)
         if self.op == "per_sample":
-            return f"{ch} / spp (per-sample variance)"
-        if self.op == "moments":
-            return f"(m2 - m1^2)/(spp - 1) with m1 = {ch}, m2 = {', '.join(self.m2)}"
-        return ch
+            text = f"{ch} / spp (per-sample variance)"
+        elif self.op == "moments":
+            text = f"(m2 - m1^2)/(spp - 1) with m1 = {ch}, m2 = {', '.join(self.m2)}"
+        else:
+            text = ch
+        if self.scale:
+            text += " times (" + ", ".join(f"{f:g}" for f in self.scale) + ")"
+        if self.far is not None:
+            text += f"; values >= {self.far:g} (no hit) -> 0"
+        return text
 
 
 @dataclass
@@ -138,6 +164,9 @@ class AssembledBuffers:
     arrays: dict[str, np.ndarray]
     sources: dict[str, BufferSource]
     notes: list[str]
+    #: Conventions that differ from the canonical ones, and values out of the canonical range
+    #: (one line each, ``"<buffer>: ..."``); :func:`mcdenoise.io.load_buffers` logs them.
+    warnings: list[str] = field(default_factory=list)
 
 
 # --- profiles --------------------------------------------------------------------------------

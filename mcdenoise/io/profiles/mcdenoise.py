@@ -14,6 +14,7 @@ specular        ``specular.R``, ``.G``, ``.B``              specular part of col
 visibility      ``visibility.Y``                            direct-light visibility in [0, 1]
 motion          ``motion.X``, ``motion.Y``                  motion to the previous frame (pixels)
 motion_valid    ``motion_valid.Y``                          1 where the motion is trustworthy
+motion_next     ``motion_next.X``, ``motion_next.Y``        motion to the next frame (pixels)
 <buffer>_var    ``<buffer>_var.<same suffixes>``            variance of the mean of <buffer>
 <buffer>_var    ``<buffer>_var.Y`` (1 channel)              luminance variance of the mean
 ==============  ==========================================  =====================================
@@ -45,6 +46,7 @@ SUFFIXES: dict[str, tuple[str, ...]] = {
     "visibility": ("Y",),
     "motion": ("X", "Y"),
     "motion_valid": ("Y",),
+    "motion_next": ("X", "Y"),
 }
 #: Value of the ``mcdenoise:layout`` attribute written by :func:`mcdenoise.io.save_buffers`.
 LAYOUT_VERSION = "1"

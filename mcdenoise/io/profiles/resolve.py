@@ -198,11 +198,14 @@ def assemble(cmap: ChannelMap, pixels: Mapping[str, np.ndarray]) -> AssembledBuf
     Returns:
         :class:`AssembledBuffers` with float32 ``(C, H, W)`` arrays. NaN/Inf/negative values
         of copied channels are kept as stored; variances from moments are clamped at 0
-        (negative only by rounding).
+        (negative only by rounding). A source's ``far`` marker becomes 0 and its ``scale``
+        factors are applied; its ``note`` and values above its ``expect_max`` become
+        ``warnings``.
     """
     arrays: dict[str, np.ndarray] = {}
     chosen: dict[str, BufferSource] = {}
     notes: list[str] = []
+    warnings: list[str] = []
     spp = cmap.spp
     for buf, cands in cmap.sources.items():
         for src in cands:
@@ -224,8 +227,9 @@ def assemble(cmap: ChannelMap, pixels: Mapping[str, np.ndarray]) -> AssembledBuf
                     out = np.where(diff < 0, np.float32(0), diff) / np.float32(spp - 1)
             else:  # pragma: no cover - ops are fixed above
                 raise ValueError(f"unknown op {src.op!r}")
-            arrays[buf] = np.ascontiguousarray(out, dtype=np.float32)
+            arrays[buf] = _convert(out, src)
             chosen[buf] = src
+            warnings.extend(_convention_warnings(buf, src, arrays[buf]))
             break
         else:
             tried = "; ".join(s.describe() for s in cands)
@@ -233,4 +237,33 @@ def assemble(cmap: ChannelMap, pixels: Mapping[str, np.ndarray]) -> AssembledBuf
                 f"{buf} not produced: no moment pair's first moment Y equals the luminance of "
                 f"R,G,B (tried {tried})"
             )
-    return AssembledBuffers(arrays, chosen, notes)
+    return AssembledBuffers(arrays, chosen, notes, warnings)
+
+
+def _convert(out: np.ndarray, src: BufferSource) -> np.ndarray:
+    """``src``'s "no hit" marker -> 0 and its per-channel factors, as float32."""
+    if src.far is None and not src.scale:
+        return np.ascontiguousarray(out, dtype=np.float32)
+    out = np.array(out, dtype=np.float32, copy=True)
+    if src.far is not None:
+        out[out >= np.float32(src.far)] = 0.0
+    if src.scale:
+        out *= np.asarray(src.scale, dtype=np.float32).reshape(-1, 1, 1)
+    return np.ascontiguousarray(out)
+
+
+def _convention_warnings(buf: str, src: BufferSource, arr: np.ndarray) -> list[str]:
+    """One line per way ``src`` departs from ``buf``'s canonical meaning (see BufferSource)."""
+    out = [f"{buf}: {src.note}"] if src.note else []
+    if src.expect_max is not None:
+        with np.errstate(invalid="ignore"):
+            above = np.any(arr > src.expect_max, axis=0)
+        n = int(above.sum())
+        if n:
+            peak = float(np.nanmax(arr[:, above]))
+            why = f" ({src.expect_why})" if src.expect_why else ""
+            out.append(
+                f"{buf}: {n} pixel(s) above {src.expect_max:g} (max {peak:.4g}){why}; "
+                "kept as stored"
+            )
+    return out

@@ -57,3 +57,57 @@ def mitsuba_channels(rng, spp_var_y):
     ch.update(planes(rng, ["decoy.X", "decoy.Y", "decoy.Z"]))
     ch.update(planes(rng, ["m2_decoy.X", "m2_decoy.Y", "m2_decoy.Z"], 2, 3))
     return ch
+
+
+def blender_file(path: Path, layers: dict, attributes: dict | None = None) -> Path:
+    """A multilayer EXR laid out as Blender 5 writes it: one part ``<Layer>.<Pass>`` per pass,
+    channels ``<Layer>.<Pass>.<ch>``, the file-wide attributes (``BlenderMultiChannel``,
+    ``cycles.<Layer>.samples``...) in part 0 only.
+
+    ``layers``: layer -> pass -> channel suffix -> ``(H, W)`` array, in file order.
+    """
+    from mcdenoise.io.exr import ExrPartData, write_exr_parts
+
+    parts = []
+    for layer, passes in layers.items():
+        for pass_name, chans in passes.items():
+            parts.append(
+                ExrPartData(
+                    name=f"{layer}.{pass_name}",
+                    channels={f"{layer}.{pass_name}.{c}": a for c, a in chans.items()},
+                    attributes=None if parts else dict(attributes or {}),
+                )
+            )
+    write_exr_parts(path, parts)
+    return path
+
+
+def blender_layer(rng: np.random.Generator, *, denoising: bool, position: bool = True) -> dict:
+    """Passes of one view layer, with values in the ranges Cycles writes (see cycles.py)."""
+
+    def p(suffixes, lo=0.0, hi=1.0):
+        return {c: rng.uniform(lo, hi, (H, W)).astype(np.float32) for c in suffixes}
+
+    depth = rng.uniform(1, 9, (H, W)).astype(np.float32)
+    depth[0, :3] = 1e10  # Blender's "no hit"
+    passes = {
+        "Combined": p("RGBA"),
+        "Depth": {"Z": depth},
+        "Normal": p("XYZ", -1, 1),
+        "Vector": p("XYZW", -3, 3),
+    }
+    if position:
+        passes["Position"] = p("XYZ", -5, 5)
+    if denoising:
+        passes["Denoising Normal"] = p("XYZ", -1, 1)
+        passes["Denoising Albedo"] = p("RGB")
+        passes["Denoising Depth"] = p("Z", 1, 9)
+    return passes
+
+
+BLENDER_ATTRS = {
+    "BlenderMultiChannel": "Blender V2.55.1 and newer",
+    "Software": "Blender 5.0.1",
+    "cycles.ViewLayer.samples": "16",
+    "cycles.Layer2.samples": "16",
+}
