@@ -142,3 +142,58 @@ def test_mitsuba_color_var_matches_variance_over_independent_renders(tmp_path):
     ratio = empirical[mask].sum() / predicted[mask].sum()
     # /(spp - 1) is unbiased (ratio ~1); /spp would give ~spp/(spp-1) = 1.33.
     assert 0.85 < ratio < 1.17, ratio
+
+
+@pytest.mark.mitsuba
+def test_real_mitsuba_aov_conventions_are_the_canonical_ones(tmp_path):
+    """What the canonical buffers mean is what Mitsuba's ``aov`` writes (the training data's
+    renderer): ``sh_normal`` in world space, ``depth`` = distance along the camera ray (not the
+    planar camera z), ``position`` in world space, and 0 in all three where the ray escapes."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    T = mi.ScalarTransform4f
+    origin, target = np.array([0.5, -5.0, 2.5]), np.array([0.0, 0.0, 1.5])
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {
+                "type": "aov",
+                "aovs": "albedo:albedo,nn:sh_normal,dd:depth,pp:position",
+                "img": {"type": "path", "max_depth": 2},
+            },
+            "sensor": {
+                "type": "perspective",
+                "fov": 50,
+                "to_world": T().look_at(
+                    origin=origin.tolist(), target=target.tolist(), up=[0, 0, 1]
+                ),
+                "film": {"type": "hdrfilm", "width": 24, "height": 16, "rfilter": {"type": "box"}},
+                "sampler": {"type": "independent", "sample_count": 4},
+            },
+            "floor": {"type": "rectangle", "to_world": T().scale(20), "bsdf": {"type": "diffuse"}},
+            "light": {
+                "type": "point",
+                "position": [2, -2, 4],
+                "intensity": {"type": "rgb", "value": 20},
+            },
+        }
+    )
+    mi.render(scene, seed=1)
+    path = tmp_path / "aov.exr"
+    scene.sensors()[0].film().bitmap().write(str(path))
+    fb = load_buffers(path)
+    assert fb.profile == "mitsuba"
+    pos, n, d = fb["position"].numpy(), fb["normal"].numpy(), fb["depth"].numpy()[0]
+    # The bottom half sees only the floor (its far edge is 20 units away, beyond the horizon).
+    inner = np.zeros(d.shape, bool)
+    inner[d.shape[0] // 2 :] = True
+    assert inner.sum() > 50 and np.all(np.abs(pos[2][inner]) < 1e-6)
+    np.testing.assert_allclose(n[:, inner], np.array([[0.0], [0.0], [1.0]]).repeat(inner.sum(), 1))
+    ray = np.linalg.norm(pos - origin[:, None, None], axis=0)
+    fwd = (target - origin) / np.linalg.norm(target - origin)
+    planar = np.einsum("i,ihw->hw", fwd, pos - origin[:, None, None])
+    # Mean of distances vs distance of the mean position: equal to well under 1 %.
+    assert np.max(np.abs(d - ray)[inner] / ray[inner]) < 0.01
+    assert np.max(np.abs(d - planar)[inner] / planar[inner]) > 0.05
+    # The top row looks over the floor's far edge: no hit, and 0 in every geometric buffer.
+    assert np.all(d[0] == 0) and np.all(pos[:, 0] == 0) and np.all(n[:, 0] == 0)
