@@ -33,7 +33,9 @@ figure), and a table of the issue's targets with per-image win counts and PASS/F
 
 Options:
 
-* ``--ablation LABEL=RUN`` (repeatable): one table row per model: relMSE geometric mean per spp
+* ``--ablation LABEL=RUN[,KEY=VALUE...]`` (repeatable; ``RUN`` may be ``shipped``, the
+  pairs are ``kpcn`` method parameters, e.g. ``raw=shipped,prefilter=off``): one table row
+  per model: relMSE geometric mean per spp
   on the full and on the basic source, mean SSIM (full source), seconds per megapixel (at
   1024×1024 with ``--speed``, else the per-image median), parameter count, and kernel size /
   scales / encoder / loss / sources read from its model card.
@@ -185,6 +187,7 @@ class Model:
     origin: str
     path: Path
     model: KpcnModel
+    extra: dict[str, str] = field(default_factory=dict)
 
     @property
     def params(self) -> int:
@@ -199,7 +202,9 @@ class Model:
         )
 
 
-def freeze_model(label: str, spec: str, folder: Path) -> Model:
+def freeze_model(
+    label: str, spec: str, folder: Path, extra: Mapping[str, str] | None = None
+) -> Model:
     """Copy the model file of ``spec`` (run folder, model file or ``shipped``) into ``folder``."""
     if spec in ("", "shipped"):
         src = shipped_model_path("kpcn")
@@ -213,7 +218,8 @@ def freeze_model(label: str, spec: str, folder: Path) -> Model:
             raise SystemExit(f"{label}: {spec}: no model file (expected a run folder or model.pt)")
     dst = folder / f"{len(list(folder.iterdir()))}-{src.name}"
     shutil.copyfile(src, dst)
-    return Model(label, f"{src} (mtime {time.ctime(src.stat().st_mtime)})", dst, load_kpcn(dst))
+    origin = f"{src} (mtime {time.ctime(src.stat().st_mtime)})"
+    return Model(label, origin, dst, load_kpcn(dst), dict(extra or {}))
 
 
 def disjointness(heldout: Path, model: Model) -> str:
@@ -388,11 +394,19 @@ def clean(obj: Any) -> Any:
     return obj
 
 
-def parse_ablation(text: str) -> tuple[str, str]:
-    label, sep, run = text.partition("=")
-    if not sep or not label.strip() or not run.strip():
-        raise argparse.ArgumentTypeError(f"--ablation wants LABEL=RUN, got {text!r}")
-    return label.strip(), run.strip()
+def parse_ablation(text: str) -> tuple[str, str, dict[str, str]]:
+    """``LABEL=RUN[,KEY=VALUE...]``: a label, a model, and kpcn method parameters."""
+    label, sep, rest = text.partition("=")
+    run, *pairs = rest.split(",")
+    extra = dict(p.partition("=")[::2] for p in pairs)
+    if (
+        not sep
+        or not label.strip()
+        or not run.strip()
+        or any(not k or not v for k, v in extra.items())
+    ):
+        raise argparse.ArgumentTypeError(f"--ablation wants LABEL=RUN[,KEY=VALUE...], got {text!r}")
+    return label.strip(), run.strip(), extra
 
 
 def parse_levels(text: str) -> list[int]:
@@ -450,7 +464,7 @@ def run(args: argparse.Namespace, tmp: Path, with_flip: bool) -> int:
     frozen = tmp / "models"
     frozen.mkdir()
     main_model = freeze_model("kpcn", args.model, frozen)
-    ablations = [freeze_model(label, spec, frozen) for label, spec in args.ablation]
+    ablations = [freeze_model(label, spec, frozen, extra) for label, spec, extra in args.ablation]
     mversion = mitsuba_version_of(args.heldout)
     out: dict[str, Any] = {"model": main_model.origin, "card": main_model.card_text()}
 
@@ -509,7 +523,7 @@ def run(args: argparse.Namespace, tmp: Path, with_flip: bool) -> int:
         ("nlm-basic", True, "nlm", {}, with_flip),
     ]
     for m in ablations:
-        p = {"model": str(m.path), "source": "full"}
+        p = {"model": str(m.path), "source": "full", **m.extra}
         if "full" in m.model.card.sources:
             passes.append((f"{m.label}|full", False, "kpcn", p, False))
         if "basic" in m.model.card.sources:
@@ -669,9 +683,11 @@ def print_ablations(
         out["ablations"][m.label] = row
         c = m.model.card
         loss = c.training.get("config", {}).get("loss", "?")
+        extra = "".join(f" {k}={v}" for k, v in m.extra.items())
+        row["extra"] = dict(m.extra)
         print(
             f"{text}{fmt(row['ssim_full'], '.4f'):>8}{fmt(row['s_per_mp_images'], '.2f'):>8}"
-            f"{m.params:>9}  k={c.kernel} scales={c.scales} {c.encoder} {loss}"
+            f"{m.params:>9}  k={c.kernel} scales={c.scales} {c.encoder} {loss}{extra}"
         )
     if args.speed:
         print("(s/MP above: per held-out image; at 1024x1024 in the speed section)")
@@ -702,7 +718,7 @@ def speed(args, sample: FeatureBuffers, main_model: Model, ablations, out: dict,
     )
     for m in ablations:
         src = "full" if "full" in m.model.card.sources else "auto"
-        t = timed(big, "kpcn", {"model": str(m.path), "source": src}, args.repeats)
+        t = timed(big, "kpcn", {"model": str(m.path), "source": src, **m.extra}, args.repeats)
         out.setdefault("ablations", {}).setdefault(m.label, {})["s_per_mp_speed"] = t / mp
         print(f"  {m.label}: {t:.2f} s ({t / mp:.2f} s/MP, {t / t_oidn:.2f}x oidn)")
 

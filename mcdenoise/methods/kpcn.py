@@ -26,7 +26,13 @@ from mcdenoise.methods.cross_bilateral import GUIDE_VARS
 from mcdenoise.models.encoders import SOURCES
 from mcdenoise.models.kpcn import STRIP, TILE, KpcnModel
 from mcdenoise.models.weights import SHIPPED, load_kpcn, shipped_model_path
-from mcdenoise.prep.kpcn import choose_source, prepare_tensors, source_for
+from mcdenoise.prep.kpcn import (
+    DEFAULT_PREFILTER,
+    PREFILTER_MODES,
+    choose_source,
+    prepare_tensors,
+    source_for,
+)
 
 
 @torch.no_grad()
@@ -35,6 +41,7 @@ def denoise_kpcn(
     buffers: FeatureBuffers,
     *,
     source: str | None = None,
+    prefilter: str = DEFAULT_PREFILTER,
     tile: int = TILE,
     strip: int = STRIP,
 ) -> Tensor:
@@ -43,6 +50,9 @@ def denoise_kpcn(
     Args:
         source: force an input source (default: the first the model knows whose buffers
             are present, :func:`~mcdenoise.prep.kpcn.source_for`).
+        prefilter: which noisy guide features are prefiltered first, a key of
+            :data:`~mcdenoise.prep.kpcn.PREFILTER_MODES` (default ``auto``: those without a
+            variance buffer).
         tile: tile edge in pixels (rounded up to :attr:`KpcnModel.multiple`); the result does
             not depend on it (to float rounding).
         strip: rows of kernels materialised at once.
@@ -51,7 +61,7 @@ def denoise_kpcn(
     if src not in model.card.sources:
         raise InputError(f"this kpcn model has no '{src}' source ({', '.join(model.card.sources)})")
     device = next(model.parameters()).device
-    t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, src).items()}
+    t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, src, prefilter).items()}
     return model.denoise_tensors(t, src, tile=tile, strip=strip)[0]
 
 
@@ -86,18 +96,27 @@ def _check(b: FeatureBuffers, params: Mapping[str, Any]) -> str | None:
 def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
     model = _model(params).to(device)
     source = str(params["source"])
+    prefilter = str(params["prefilter"])
+    if prefilter not in PREFILTER_MODES:
+        raise InputError(
+            f"kpcn: prefilter must be one of {', '.join(PREFILTER_MODES)}, got {prefilter!r}"
+        )
     return denoise_kpcn(
-        model, b, source=None if source == "auto" else source, tile=int(params["tile"])
+        model,
+        b,
+        source=None if source == "auto" else source,
+        prefilter=prefilter,
+        tile=int(params["tile"]),
     )
 
 
 METHOD = Method(
     name="kpcn",
     summary="kernel-predicting CNN, source-aware encoder, 3-scale kernels (Bako 2017, "
-    "Vogels 2018); -p model=RUN",
+    "Vogels 2018); -p model=RUN, -p prefilter=auto|all|off",
     requires=("color", "albedo", "normal"),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
-    defaults={"model": SHIPPED, "source": "auto", "tile": 1024},
+    defaults={"model": SHIPPED, "source": "auto", "prefilter": DEFAULT_PREFILTER, "tile": 1024},
     run=_run,
     check_input=_check,
     priority=22 if shipped_model_path("kpcn").is_file() else -1,

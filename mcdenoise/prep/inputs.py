@@ -10,7 +10,10 @@ the guide features to comparable scales and picks up the variances that are pres
   scene"; their variances by the extent squared;
 * features that come with a variance are **prefiltered** (variance-normalised NLM, 11×11
   window), as in Rousselle et al. 2013: a defocused or motion-blurred feature is as noisy as
-  the colour and would otherwise imprint that noise on the result;
+  the colour and would otherwise imprint that noise on the result; with
+  ``estimate_missing=True`` a feature *without* a variance buffer (a Mitsuba ``aov`` file,
+  Cycles) is prefiltered the same way with a variance estimated from its own neighbourhood
+  (:func:`estimate_feature_variance`);
 * ``color_var`` (variance of the mean) is averaged over channels and made robust with
   ``max(v, median_3×3(v))``: from a few samples the variance estimate is itself very noisy, and
   a pixel whose estimate came out near 0 would otherwise refuse all its neighbours. Without a
@@ -24,8 +27,9 @@ one (:mod:`mcdenoise.filters.albedo`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -40,6 +44,10 @@ from mcdenoise.io.buffers import FeatureBuffers, sanitize
 
 #: NLM settings of the feature prefilter (variance-normalised, paper denominator ``v_i + v_j``).
 PREFILTER = {"search_radius": 5, "patch_radius": 3, "k": 1.0, "alpha": 1.0, "var_pair": "sum"}
+#: The same for a feature whose variance is estimated (:func:`estimate_feature_variance`):
+#: 3×3 patches. Measured with kpcn on the ``basic`` source (docs/results/kpcn.md, "Out of
+#: distribution"): on a defocused 4-spp albedo the 7×7 patches leave 1.4× the error.
+PREFILTER_ESTIMATED = {**PREFILTER, "patch_radius": 1}
 
 
 @dataclass
@@ -57,6 +65,8 @@ class FilterInputs:
             or ``None``.
         extent: scene extent that depth / position were divided by (``None`` if neither).
         estimated_variance: True when ``color_var`` was estimated from the colour.
+        estimated_features: features prefiltered with a variance estimated from themselves
+            (``estimate_missing``).
         repaired: buffer name -> number of NaN/Inf/negative values repaired by sanitising.
     """
 
@@ -67,6 +77,7 @@ class FilterInputs:
     albedo: Tensor | None = None
     extent: float | None = None
     estimated_variance: bool = False
+    estimated_features: tuple[str, ...] = ()
     repaired: dict[str, int] = field(default_factory=dict)
 
 
@@ -128,6 +139,58 @@ def estimate_variance(color: Tensor, *, bins: int = 16, firefly_sigmas: float = 
     return torch.where(firefly, torch.maximum(nlf, excess.square()), nlf).clamp_min(0.0)
 
 
+def chi2_median_fraction(dof: int) -> float:
+    """Median of ``χ²_dof / dof`` (Wilson–Hilferty: ``(1 - 2 / (9 dof))³``; 0.470 for 1, 0.794
+    for 3 degrees of freedom, within 4 % of the exact 0.455 and 0.789): what the median of the
+    channel mean of ``dof`` squared Gaussian details is, as a fraction of their variance."""
+    return (1.0 - 2.0 / (9.0 * dof)) ** 3
+
+
+def estimate_feature_variance(feature: Tensor) -> Tensor:
+    """Per-pixel variance of the mean of a noisy feature, estimated from its neighbourhood.
+
+    For a feature without a variance buffer (albedo, normal, ...): the squared diagonal Haar
+    detail ``d = (a - b - c + d) / 2`` of each 2×2 block (variance σ² for independent noise,
+    0 on flat regions and on axis-aligned edges), averaged over channels, then a separable
+    5-tap median (along rows, then along columns), divided by the median of that channel
+    mean for Gaussian noise (:func:`chi2_median_fraction`). The median makes it local (noise
+    from depth of field or motion blur is confined to the defocused or moving parts) and
+    robust: a sharp diagonal edge or a corner puts large details on a line one or two pixels
+    wide, at most two of any five taps in a row or a column, and is not taken for noise, while
+    a region where most details are large is.
+
+    Args:
+        feature: ``(B, C, H, W)`` finite feature.
+
+    Returns:
+        ``(B, 1, H, W)`` non-negative variance estimate, same dtype.
+    """
+    x = F.pad(feature, (0, 1, 0, 1), mode="replicate")
+    d = (x[..., :-1, :-1] - x[..., :-1, 1:] - x[..., 1:, :-1] + x[..., 1:, 1:]) * 0.5
+    d2 = d.square().mean(dim=1, keepdim=True)
+    med = _line_median(_line_median(d2, -1), -2)
+    return (med / chi2_median_fraction(feature.shape[1])).clamp_min(0.0)
+
+
+def _line_median(x: Tensor, dim: int, radius: int = 2) -> Tensor:
+    """Median of the ``2 radius + 1`` taps along ``dim`` (-1: rows, -2: columns), replicate
+    border."""
+    pad = (radius, radius, 0, 0) if dim == -1 else (0, 0, radius, radius)
+    p = F.pad(x, pad, mode="replicate")
+    n = x.shape[dim]
+    taps = [p.narrow(dim, i, n) for i in range(2 * radius + 1)]
+    return torch.stack(taps).median(dim=0).values
+
+
+def prefilter_feature(
+    feature: Tensor, variance: Tensor, settings: Mapping[str, Any] = PREFILTER
+) -> Tensor:
+    """A noisy feature filtered by variance-normalised NLM (``settings``, default
+    :data:`PREFILTER`) guided by itself."""
+    with torch.no_grad():
+        return non_local_means(feature, color_var=variance, **settings)
+
+
 def _quantile(x: Tensor, q: Tensor, dim: int = -1) -> Tensor:
     """``torch.quantile`` in float64 on at most ~2^20 evenly strided samples along ``dim``
     (``torch.quantile`` refuses inputs above 2^24 elements; percentiles do not need them all)."""
@@ -163,6 +226,7 @@ def prepare_inputs(
     *,
     features: Sequence[str] = GUIDE_FEATURES,
     prefilter: bool = True,
+    estimate_missing: bool = False,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
 ) -> FilterInputs:
@@ -173,6 +237,8 @@ def prepare_inputs(
         features: which guide features to use if present (subset of
             :data:`~mcdenoise.filters.settings.GUIDE_FEATURES`).
         prefilter: prefilter features that have a variance buffer (see the module docstring).
+        estimate_missing: prefilter features that have none, with a variance estimated from
+            the feature (:func:`estimate_feature_variance`; not put in ``feature_vars``).
         dtype, device: of the returned tensors.
 
     Raises:
@@ -193,6 +259,7 @@ def prepare_inputs(
     extent = _robust_extent(clean) if {"depth", "position"} & set(wanted) else None
     feats: dict[str, Tensor] = {}
     fvars: dict[str, Tensor] = {}
+    estimated_features: list[str] = []
     for name in wanted:
         scale = 1.0
         if name in ("depth", "position"):
@@ -203,8 +270,10 @@ def prepare_inputs(
         if name + "_var" in clean:
             fvars[name] = t(name + "_var") * scale**2
             if prefilter:
-                with torch.no_grad():
-                    f = non_local_means(f, color_var=fvars[name], **PREFILTER)  # type: ignore[arg-type]
+                f = prefilter_feature(f, fvars[name])
+        elif estimate_missing:
+            f = prefilter_feature(f, estimate_feature_variance(f), PREFILTER_ESTIMATED)
+            estimated_features.append(name)
         feats[name] = f
     albedo = feats.get("albedo")
     if albedo is None and "albedo" in clean and "albedo" in features:
@@ -223,6 +292,7 @@ def prepare_inputs(
         albedo=albedo,
         extent=extent,
         estimated_variance=estimated,
+        estimated_features=tuple(estimated_features),
         repaired=repaired,
     )
 
@@ -253,10 +323,14 @@ def guide_args(
 
 __all__ = [
     "PREFILTER",
+    "PREFILTER_ESTIMATED",
     "FilterInputs",
+    "chi2_median_fraction",
     "demodulate_inputs",
+    "estimate_feature_variance",
     "estimate_variance",
     "guide_args",
+    "prefilter_feature",
     "prepare_inputs",
     "robust_variance",
 ]

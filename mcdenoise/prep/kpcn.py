@@ -4,9 +4,19 @@ A *source* (:data:`~mcdenoise.models.encoders.SOURCES`) is a fixed set of buffer
 writes; the network has one encoder per source it was trained with. :func:`choose_source`
 takes the first of ``full``, ``basic``, ``color`` whose buffers the input has (among those
 the model knows). :func:`prepare_tensors` sanitises and normalises the image once
-(:func:`~mcdenoise.prep.inputs.prepare_inputs`: depth / position over the scene extent, no
-prefiltering, the robust colour variance); the network turns these tensors into its input
-channels per crop or tile (:func:`~mcdenoise.models.encoders.source_channels`).
+(:func:`~mcdenoise.prep.inputs.prepare_inputs`: depth / position over the scene extent, the
+robust colour variance) and prefilters the noisy guide features as :data:`PREFILTER_MODES`
+says; the network turns these tensors into its input channels per crop or tile
+(:func:`~mcdenoise.models.encoders.source_channels`).
+
+Prefiltering matters where the features are noisy: depth of field, motion blur, texture finer
+than a pixel. The network demodulates the colour by the albedo and multiplies the filtered
+irradiance back by it, so every bit of noise in the albedo comes back in the result; a
+source without feature variances (``basic``) cannot even tell the network that the albedo is
+noisy. ``auto`` (the default) prefilters the features that come without a variance buffer,
+with a variance estimated from their neighbourhood
+(:func:`~mcdenoise.prep.inputs.estimate_feature_variance`), and leaves the ones with a
+variance as they are (the ``full`` source hands that variance to the network).
 """
 
 from __future__ import annotations
@@ -15,6 +25,7 @@ from collections.abc import Sequence
 
 from torch import Tensor
 
+from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.models.encoders import FEATURE_VARS, SOURCES
@@ -30,6 +41,15 @@ PREPARED = {
     "position": 3,
     **{f"{g}_var": 1 for g in FEATURE_VARS},
 }
+#: ``prefilter`` modes of :func:`prepare_tensors`: which guide features are prefiltered.
+PREFILTER_MODES = {
+    "auto": "the features without a variance buffer (variance estimated from the feature)",
+    "all": "every feature (its variance buffer when there is one, else estimated)",
+    "off": "none: the features as the renderer wrote them",
+}
+#: Default ``prefilter`` mode.
+DEFAULT_PREFILTER = "auto"
+
 #: Tensors that hold RGB colour (permuted together by the colour augmentation).
 COLOR_TENSORS = ("color", "albedo", "reference")
 
@@ -62,16 +82,31 @@ def source_for(buffers: FeatureBuffers, trained: Sequence[str]) -> str:
     return src
 
 
-def prepare_tensors(buffers: FeatureBuffers, source: str) -> dict[str, Tensor]:
+def prepare_tensors(
+    buffers: FeatureBuffers, source: str, prefilter: str = DEFAULT_PREFILTER
+) -> dict[str, Tensor]:
     """Sanitised, normalised tensors ``{name: (C, H, W)}`` of one image for ``source``.
 
+    Args:
+        prefilter: which guide features to prefilter, a key of :data:`PREFILTER_MODES`.
+
     Raises:
+        InputError: an unknown ``prefilter`` mode.
         MissingFeatureError: a buffer the source needs is absent (or, for depth / position,
         has no usable scene extent).
     """
     buffers.require(list(SOURCES[source]), needed_by=f"the kpcn '{source}' source")
     guides = [g for g in GUIDE_FEATURES if g in SOURCES[source]]
-    inp = prepare_inputs(buffers, features=guides, prefilter=False)
+    if prefilter not in PREFILTER_MODES:
+        raise InputError(
+            f"prefilter must be one of {', '.join(PREFILTER_MODES)}, got {prefilter!r}"
+        )
+    inp = prepare_inputs(
+        buffers,
+        features=guides,
+        prefilter=prefilter == "all",
+        estimate_missing=prefilter != "off",
+    )
     missing = [g for g in guides if g not in inp.features]
     if missing:
         raise MissingFeatureError(
@@ -91,4 +126,12 @@ def prepare_tensors(buffers: FeatureBuffers, source: str) -> dict[str, Tensor]:
     return out
 
 
-__all__ = ["COLOR_TENSORS", "PREPARED", "choose_source", "prepare_tensors", "source_for"]
+__all__ = [
+    "COLOR_TENSORS",
+    "DEFAULT_PREFILTER",
+    "PREFILTER_MODES",
+    "PREPARED",
+    "choose_source",
+    "prepare_tensors",
+    "source_for",
+]

@@ -108,6 +108,13 @@ class TrainConfig:
         sources: KPCN input sources trained (``full``, ``basic``); each training crop is shown
             to the network as one of them, chosen at random.
         augment: random flips, 90° rotations and colour-channel permutations of the crops.
+        exposure: KPCN: scale each crop's colour and reference by ``2^u``, ``u`` uniform in
+            ``[-exposure, exposure]`` stops (the variance by the square); 0 = off.
+        prefilter: KPCN: how the ``basic`` crops' albedo and normal are prefiltered, as
+            ``kpcn -p prefilter=`` does at inference on an input without feature variances
+            (``auto`` or ``all``: the variance estimated from the feature; ``off``: as
+            rendered). ``all`` also prefilters the ``full`` crops' features with their
+            variances.
         amp: mixed precision on CUDA (``off``, ``bf16``, ``fp16``): the convolutions run in
             the low precision, the kernel softmax, kernel application and loss in float32.
         finetune_encoder: train only the encoder of this source against a frozen trunk
@@ -152,6 +159,8 @@ class TrainConfig:
     albedo_kernels: bool = False
     sources: list[str] = field(default_factory=lambda: ["full", "basic"])
     augment: bool = True
+    exposure: float = 0.0
+    prefilter: str = "off"
     amp: str = "off"
     finetune_encoder: str = ""
     base: str = ""
@@ -195,6 +204,11 @@ class TrainConfig:
             (
                 self.encoder in ("source-aware", "shared"),
                 f"encoder must be source-aware or shared, got {self.encoder!r}",
+            ),
+            (self.exposure >= 0, f"exposure must be >= 0 stops, got {self.exposure}"),
+            (
+                self.prefilter in ("auto", "all", "off"),
+                f"prefilter must be auto, all or off, got {self.prefilter!r}",
             ),
             (self.amp in AMP_MODES, f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}"),
             (

@@ -69,6 +69,35 @@ def source_stats(items: Sequence[Item], source: str) -> FeatureStats:
     return FeatureStats.from_samples(channel_names(source), samples)
 
 
+#: Features of a ``basic`` crop that the trainer prefilters as inference does (``prefilter``),
+#: kept in the prepared item under ``<name>`` + :data:`BASIC_SUFFIX`.
+BASIC_PREFILTERED = ("albedo", "normal")
+BASIC_SUFFIX = "_basic"
+
+
+def use_basic_features(batch: dict[str, Tensor], basic: Tensor) -> dict[str, Tensor]:
+    """The batch with the crops flagged in ``basic`` ``(B,)`` given their basic-source
+    (prefiltered) albedo and normal, and those extra tensors removed."""
+    out = {k: v for k, v in batch.items() if not k.endswith(BASIC_SUFFIX)}
+    for name in BASIC_PREFILTERED:
+        alt = batch.get(name + BASIC_SUFFIX)
+        if alt is not None:
+            out[name] = torch.where(basic.view(-1, 1, 1, 1), alt, batch[name])
+    return out
+
+
+def scale_exposure(batch: dict[str, Tensor], scale: Tensor) -> dict[str, Tensor]:
+    """Colour and reference of each crop times ``scale`` ``(B,)``, the colour variance times
+    its square (albedo, normal, depth, position and their variances do not change)."""
+    s = scale.view(-1, 1, 1, 1)
+    out = dict(batch)
+    for key in ("color", "reference"):
+        out[key] = batch[key] * s.to(batch[key].dtype)
+    if "color_var" in batch:
+        out["color_var"] = batch["color_var"] * s.square().to(batch["color_var"].dtype)
+    return out
+
+
 #: Validation images on which the compositor weights are measured.
 SCALE_USE_IMAGES = 8
 #: Below this mean compositor weight a scale counts as unused (``mcdenoise train`` says so).
@@ -125,6 +154,7 @@ class KpcnTask:
             errs = []
             for it in self.val_items:
                 t = {k: v[None].to(device) for k, v in it.tensors.items() if k != "reference"}
+                t = use_basic_features(t, torch.tensor([src == "basic"], device=device))
                 out = self.model.denoise_tensors(t, src)[0].cpu()
                 errs.append(image_relmse(out, it.tensors["reference"]))
             every += errs
@@ -148,6 +178,7 @@ class KpcnTask:
         m = self.model.multiple
         for it in items:
             t = {k: v[None].to(device) for k, v in it.tensors.items() if k != "reference"}
+            t = use_basic_features(t, torch.tensor([self.val_sources[0] == "basic"], device=device))
             h, w = t["color"].shape[-2:]
             t = {k: v[..., : h - h % m, : w - w % m] for k, v in t.items()}
             for s, a in enumerate(self.model.compositor_weights(t, self.val_sources[0])):
@@ -239,7 +270,13 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
     sources = [s for s in SOURCES if s in cfg.sources]
 
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
-        return {**prepare_tensors(buffers, "full"), "reference": ref}
+        t = prepare_tensors(buffers, "full", "all" if cfg.prefilter == "all" else "off")
+        if cfg.prefilter != "off" and "basic" in sources:
+            # what the basic source gets at inference: no feature variances, so the albedo
+            # and normal are prefiltered with a variance estimated from themselves
+            basic = prepare_tensors(buffers.subset(list(SOURCES["basic"])), "basic", "auto")
+            t.update({f"{k}{BASIC_SUFFIX}": basic[k] for k in BASIC_PREFILTERED})
+        return {**t, "reference": ref}
 
     crop = cfg.patch + 2 * cfg.margin
     train_items, val_items, report = load_split(cfg, prepare, crop=crop, progress=progress)
@@ -270,13 +307,19 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
     index = {s: i for i, s in enumerate(model.card.sources)}
     codes = torch.tensor([index[s] for s in trained])
 
+    color_keys = (*COLOR_TENSORS, f"albedo{BASIC_SUFFIX}")
+    basic_code = index.get("basic", -1)
+
     def transform(batch: dict[str, Tensor], g: torch.Generator) -> dict[str, Tensor]:
         if cfg.augment:
-            batch = augment(batch, g, COLOR_TENSORS)
+            batch = augment(batch, g, color_keys)
         n = batch["color"].shape[0]
+        if cfg.exposure > 0:
+            stops = (torch.rand(n, generator=g) * 2 - 1) * cfg.exposure
+            batch = scale_exposure(batch, torch.exp2(stops))
         offset = int(torch.randint(len(codes), (), generator=g))
         batch["source"] = codes[(torch.arange(n) + offset) % len(codes)]
-        return batch
+        return use_basic_features(batch, batch["source"] == basic_code)
 
     sampler = PatchSampler(
         train_items,
@@ -298,4 +341,14 @@ def train_kpcn(
     return run_training(cfg, build, out, resume=resume, progress=progress)
 
 
-__all__ = ["DEFAULT_KERNEL", "KpcnTask", "build", "source_stats", "train_kpcn"]
+__all__ = [
+    "BASIC_PREFILTERED",
+    "BASIC_SUFFIX",
+    "DEFAULT_KERNEL",
+    "KpcnTask",
+    "build",
+    "scale_exposure",
+    "source_stats",
+    "train_kpcn",
+    "use_basic_features",
+]

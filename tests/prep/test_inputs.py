@@ -11,7 +11,9 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.prep.inputs import (
     FilterInputs,
     demodulate_inputs,
+    estimate_feature_variance,
     estimate_variance,
+    prefilter_feature,
     prepare_inputs,
     robust_variance,
 )
@@ -64,6 +66,58 @@ def test_feature_with_variance_is_prefiltered(scene) -> None:
     assert torch.equal(inp.albedo, inp.features["albedo"])  # demodulation uses the same
     raw = prepare_inputs(fb, prefilter=False)
     torch.testing.assert_close(raw.features["albedo"][0], noisy_albedo[0].float())
+
+
+def test_feature_variance_estimate_is_local_and_ignores_sharp_edges() -> None:
+    g = torch.Generator().manual_seed(3)
+    h, w = 48, 64
+    # a sharp step (vertical edge), a diagonal edge and a corner: noise-free
+    ys, xs = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    clean = ((xs > 20).double() * 0.6 + (xs + ys > 50).double() * 0.3 + 0.05)[None, None]
+    clean = clean.expand(1, 3, h, w).clone()
+    sigma = 0.1
+    noisy = clean.clone()
+    noisy[..., :, 40:] += sigma * torch.randn((1, 3, h, w - 40), generator=g, dtype=torch.float64)
+    v = estimate_feature_variance(noisy)
+    assert v.shape == (1, 1, h, w) and v.dtype == torch.float64
+    # per channel the details have variance sigma^2; their channel mean has sigma^2 too
+    inside = float(v[..., 4:-4, 44:-4].mean())
+    assert 0.6 * sigma**2 < inside < 1.5 * sigma**2
+    # the noise-free part, edges and corner included, reads (nearly) as noise-free
+    assert float(v[..., :, :36].max()) < 0.05 * sigma**2
+    v_clean = estimate_feature_variance(clean)
+    assert float(v_clean.max()) < 1e-12
+    torch.testing.assert_close(prefilter_feature(clean, v_clean), clean)  # edges kept
+
+
+def test_feature_without_variance_is_prefiltered_only_when_asked(scene) -> None:
+    g = torch.Generator().manual_seed(2)
+    noisy_albedo = scene.albedo.clone()
+    noise = 0.08 * torch.randn(scene.albedo.shape, generator=g, dtype=torch.float64)
+    noisy_albedo[..., :, 16:] += noise[..., :, 16:]  # the right half is noisy (defocused)
+    noisy_albedo = noisy_albedo.clamp(0, 1)  # as a renderer writes it (sanitising clamps at 0)
+    normal = torch.nn.functional.normalize(torch.rand(3, 32, 32, generator=g), dim=0)
+    fb = FeatureBuffers(
+        buffers={
+            "color": scene.noisy[0].float(),
+            "albedo": noisy_albedo[0].float(),
+            "normal": normal,
+        }
+    )
+    raw = prepare_inputs(fb, prefilter=True)  # no variance buffer: as it is
+    assert torch.equal(raw.features["albedo"][0], noisy_albedo[0].float())
+    assert raw.estimated_features == ()
+    inp = prepare_inputs(fb, estimate_missing=True)
+    assert inp.estimated_features == ("albedo", "normal")
+    assert "albedo" not in inp.feature_vars  # the estimate is not a renderer's variance
+    assert torch.equal(inp.albedo, inp.features["albedo"])  # demodulation uses the same
+    err = (inp.features["albedo"].double() - scene.albedo).square()
+    err_raw = (noisy_albedo - scene.albedo).square()
+    assert float(err[..., 18:].mean()) < 0.5 * float(err_raw[..., 18:].mean())
+    # the noise-free half keeps its values (far from the noisy half)
+    torch.testing.assert_close(
+        inp.features["albedo"][..., :, :10], noisy_albedo[..., :, :10].float(), atol=2e-3, rtol=0
+    )
 
 
 def test_robust_variance_lifts_dropouts_and_keeps_outliers_local() -> None:

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import MissingFeatureError
 from mcdenoise.models.encoders import SOURCES
@@ -52,3 +53,25 @@ def test_prepared_tensors_have_the_documented_channels(source) -> None:
     assert set(SOURCES[source]) <= set(t) | {"color_var"}
     for name, v in t.items():
         assert v.shape == (PREPARED[name], *b.shape) and bool(torch.isfinite(v).all()), name
+
+
+def test_prefilter_modes_touch_only_the_features_they_name() -> None:
+    b = load_buffers(SAMPLES / "cornell_spp4.exr")
+    full_off = prepare_tensors(b, "full", "off")
+    # auto: a render with feature variances is left as it is (the full source sees them)
+    for name, v in prepare_tensors(b, "full", "auto").items():
+        assert torch.equal(v, full_off[name]), name
+    # all: the features with a variance are prefiltered too
+    full_all = prepare_tensors(b, "full", "all")
+    assert not torch.equal(full_all["albedo"], full_off["albedo"])
+    assert torch.equal(full_all["color"], full_off["color"])
+    # basic (no variances): auto prefilters albedo and normal with an estimated variance
+    basic = b.subset(["color", "albedo", "normal"])
+    off, auto = prepare_tensors(basic, "basic", "off"), prepare_tensors(basic, "basic")
+    assert torch.equal(off["albedo"], basic["albedo"])
+    for name in ("albedo", "normal"):
+        assert not torch.equal(auto[name], off[name]), name
+        assert float((auto[name] - off[name]).abs().mean()) < 0.05, name
+    assert torch.equal(auto["color"], off["color"])
+    with pytest.raises(InputError, match="prefilter must be one of auto, all, off"):
+        prepare_tensors(basic, "basic", "on")

@@ -22,11 +22,18 @@ from mcdenoise.io import load_buffers
 from mcdenoise.losses import l1
 from mcdenoise.methods.kpcn import denoise_kpcn
 from mcdenoise.models.kpcn import KpcnModel
-from mcdenoise.prep.kpcn import COLOR_TENSORS
+from mcdenoise.prep.kpcn import COLOR_TENSORS, prepare_tensors
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import load_config
 from mcdenoise.train.dataset import augment
-from mcdenoise.train.kpcn import UNUSED_SCALE_WEIGHT, build, train_kpcn
+from mcdenoise.train.kpcn import (
+    BASIC_SUFFIX,
+    UNUSED_SCALE_WEIGHT,
+    build,
+    scale_exposure,
+    train_kpcn,
+    use_basic_features,
+)
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 #: A tiny kpcn: 3 U-Net levels of 8 channels, 5x5 kernels at 3 scales, 32-px crops.
@@ -471,3 +478,57 @@ def test_the_cli_warns_when_the_model_ends_worse_than_its_noisy_input(
     assert r.exit_code == 0, r.output
     assert "worse than its noisy input (full 7.90x)" in r.output
     assert "basic" not in r.output.split("warning:")[1]
+
+
+# --- (f) prefiltered basic crops and exposure augmentation (issue 21) ---------------------------
+
+
+def test_basic_crops_get_the_prefiltered_features_inference_uses(tiny_dataset: Path) -> None:
+    task, sampler, _ = build(cfg(tiny_dataset, prefilter="auto", augment="false"))
+    it = sampler.items[0]
+    raw = load_buffers(it.entry.path, part=it.entry.part)
+    basic = prepare_tensors(raw.subset(["color", "albedo", "normal"]), "basic", "auto")
+    torch.testing.assert_close(it.tensors["albedo" + BASIC_SUFFIX], basic["albedo"])
+    torch.testing.assert_close(it.tensors["normal" + BASIC_SUFFIX], basic["normal"])
+    full = prepare_tensors(raw, "full", "off")  # the full crops keep the rendered features
+    assert torch.equal(it.tensors["albedo"], full["albedo"])
+    batch = sampler.batch(6, torch.Generator().manual_seed(0))
+    assert not any(k.endswith(BASIC_SUFFIX) for k in batch)
+    sources = task.model.card.sources
+    kinds = {sources[int(c)] for c in batch["source"]}
+    assert kinds == {"full", "basic"}
+    # without the option the item has no extra tensors
+    _, plain, _ = build(cfg(tiny_dataset))
+    assert not any(k.endswith(BASIC_SUFFIX) for k in plain.items[0].tensors)
+
+
+def test_use_basic_features_swaps_only_the_flagged_crops() -> None:
+    a, b = torch.zeros(3, 3, 4, 4), torch.ones(3, 3, 4, 4)
+    batch = {"albedo": a, "albedo" + BASIC_SUFFIX: b, "normal": a + 2, "color": a + 5}
+    out = use_basic_features(batch, torch.tensor([False, True, False]))
+    assert set(out) == {"albedo", "normal", "color"}
+    assert torch.equal(out["albedo"][1], b[1]) and torch.equal(out["albedo"][0], a[0])
+    assert torch.equal(out["normal"], a + 2)  # no prefiltered normal given: unchanged
+
+
+def test_exposure_scales_colour_reference_and_variance_only() -> None:
+    g = torch.Generator().manual_seed(1)
+    batch = {
+        k: torch.rand(2, c, 4, 4, generator=g)
+        for k, c in (("color", 3), ("reference", 3), ("color_var", 1), ("albedo", 3))
+    }
+    out = scale_exposure(batch, torch.tensor([2.0, 0.5]))
+    torch.testing.assert_close(out["color"][0], 2 * batch["color"][0])
+    torch.testing.assert_close(out["reference"][1], 0.5 * batch["reference"][1])
+    torch.testing.assert_close(out["color_var"][0], 4 * batch["color_var"][0])
+    assert torch.equal(out["albedo"], batch["albedo"])
+
+
+def test_training_with_exposure_and_prefilter_runs(tiny_dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    train_kpcn(cfg(tiny_dataset, exposure=2, prefilter="auto"), out, progress=False)
+    assert KpcnModel.load(out).card.training["config"]["prefilter"] == "auto"
+    with pytest.raises(InputError, match="prefilter must be"):
+        cfg(tiny_dataset, prefilter="some")
+    with pytest.raises(InputError, match="exposure must be"):
+        cfg(tiny_dataset, exposure=-1)

@@ -379,6 +379,30 @@ class Distribution:
 #: The distribution the generator draws from.
 DISTRIBUTION = Distribution()
 
+#: A wider distribution for training beyond :data:`DISTRIBUTION` (issue 21: depth of field,
+#: glossy and metal): thin lenses in 60 % of the lit scenes with apertures up to 8 % of the
+#: focus distance (the default: 20 %, up to 4 %), twice the share of conductors, no AO
+#: scenes (they have no albedo, which the kpcn trainer needs). Draw from it with
+#: ``random_scene(seed, index, distribution=WIDE)``; ``mcdenoise render --random`` always
+#: uses :data:`DISTRIBUTION`.
+WIDE = Distribution(
+    archetypes={"interior": 0.35, "outdoor": 0.25, "tabletop": 0.25, "sh": 0.15},
+    camera=Camera(thinlens_prob=0.6, aperture=U(0.01, 0.08)),
+    materials=Materials(
+        types={
+            "diffuse": 0.15,
+            "plastic": 0.08,
+            "roughplastic": 0.12,
+            "conductor": 0.2,
+            "roughconductor": 0.3,
+            "dielectric": 0.15,
+        }
+    ),
+)
+
+#: The named distributions (``benchmarks/render_random.py --distribution NAME``).
+DISTRIBUTIONS: Mapping[str, Distribution] = {"default": DISTRIBUTION, "wide": WIDE}
+
 
 # --------------------------------------------------------------------------------- text
 
