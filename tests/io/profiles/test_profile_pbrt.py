@@ -26,5 +26,8 @@ def test_pbrt_gbuffer(tmp_path, rng):
     np.testing.assert_allclose(fb["color_var"].numpy()[0], ch["Variance.G"] / 16, rtol=1e-6)
     info = describe(path)
     assert {"N.X", "u", "Variance.R", "RelativeVariance.G"} <= set(info.unmapped)
+    # Planar camera-space depth and camera-space position are not the canonical conventions.
+    assert [n.split(":")[0] for n in info.notes] == ["depth", "position"]
+    assert "planar depth" in info.notes[0] and "camera space" in info.notes[1]
     with pytest.raises(InputError, match="conflicting sample counts"):
         load_buffers(path, spp=32)
