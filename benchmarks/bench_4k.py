@@ -67,7 +67,9 @@ def run(args: list[str], timeout: float) -> dict:
     """Run ``mcdenoise`` with ``args`` in a child; wall seconds, peak RSS and its JSON record."""
     cmd = [sys.executable, "-m", "mcdenoise_cli.main", *args]
     start = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # files, not pipes: the child never blocks on a full pipe while this loop polls it
+    outf, errf = tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")
+    proc = subprocess.Popen(cmd, stdout=outf, stderr=errf, text=True)
     deadline = start + timeout
     status, usage = 0, None
     while True:
@@ -77,10 +79,13 @@ def run(args: list[str], timeout: float) -> dict:
         if time.perf_counter() > deadline:
             proc.kill()
             _, status, usage = os.wait4(proc.pid, 0)
-            return {"timeout": True, "wall": time.perf_counter() - start}
+            return {"timeout": True, "wall": time.perf_counter() - start,
+                    "peak_gb": usage.ru_maxrss * 1024 / 1e9}  # fmt: skip
         time.sleep(0.05)
     wall = time.perf_counter() - start
-    out, err = proc.stdout.read(), proc.stderr.read()  # type: ignore[union-attr]
+    outf.seek(0)
+    errf.seek(0)
+    out, err = outf.read(), errf.read()
     code = os.waitstatus_to_exitcode(status)
     if code != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({code}): {err.strip()}")
@@ -134,7 +139,10 @@ def main() -> None:
         for label in ("default", "oidn"):
             r = res[label]
             if r["timeout"]:
-                print(f"{layout:<7} {label:<15} > {a.timeout:.0f} s (stopped)")
+                print(
+                    f"{layout:<7} {label:<15} > {a.timeout:.0f} s (stopped; peak so far "
+                    f"{r['peak_gb']:.2f} GB)"
+                )
                 continue
             if base["timeout"]:
                 ratio_w = ratio_s = float("nan")
