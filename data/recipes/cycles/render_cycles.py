@@ -5,6 +5,7 @@ project's venv (see data/recipes/cycles/README.md)::
 
     /tmp/bpyenv/bin/python data/recipes/cycles/render_cycles.py OUT_DIR \
         [--res 128] [--spp 4,16] [--ref-spp 1024] [--threads 1] [--half] [--codec ZIP]
+        [--blender-denoiser]
 
 Writes ``OUT_DIR/cycles_spp<N>.exr`` for each level, ``OUT_DIR/cycles_ref.exr`` (the
 reference) and ``OUT_DIR/scene.json`` (what the scene is, for checking conventions: the camera's
@@ -226,6 +227,11 @@ def main(argv: list[str]) -> int:
     p.add_argument("--threads", type=int, default=1, help="render threads (default 1)")
     p.add_argument("--half", action="store_true", help="half-float channels (default float)")
     p.add_argument("--codec", default="ZIP", help="EXR compression (default ZIP)")
+    p.add_argument(
+        "--blender-denoiser",
+        action="store_true",
+        help="run Blender's denoiser (OIDN): Combined is then denoised, Noisy Image is written",
+    )
     args = p.parse_args(argv)
     try:
         levels = [int(s) for s in args.spp.split(",") if s.strip()]
@@ -237,6 +243,9 @@ def main(argv: list[str]) -> int:
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     scene = build_scene(args.res, args.threads)
+    if args.blender_denoiser:
+        scene.cycles.use_denoising = True
+        scene.cycles.denoiser = "OPENIMAGEDENOISE"
     facts = scene_facts(scene)
     facts["files"] = {}
     for i, spp in enumerate(levels):

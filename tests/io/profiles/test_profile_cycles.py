@@ -241,3 +241,21 @@ def test_fresh_cycles_render_conventions(tmp_path, caplog):
     )
     assert run.returncode == 0, run.stderr[-2000:]
     check_conventions(tmp_path / "cycles_spp4.exr", load_facts(tmp_path / "scene.json"), caplog)
+
+    # With Blender's own denoiser on, Combined is denoised and every layer also gets the noisy
+    # image as "Noisy Image": that is what must be read, in both layers.
+    den = tmp_path / "denoised"
+    run = subprocess.run(
+        [exe, str(script), str(den), "--res", "16", "--spp", "4", "--ref-spp", "4",
+         "--blender-denoiser"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    for layer in ("ViewLayer", "Layer2"):
+        fb = load_buffers(den / "cycles_spp4.exr", profile=f"cycles:{layer}")
+        assert fb.channels["color"] == [f"{layer}.Noisy Image.{c}" for c in "RGB"]
+        combined = load_buffers(den / "cycles_spp4.exr", profile=f"cycles:{layer}", mapping={
+            "color": [f"{layer}.Combined.{c}" for c in "RGB"]})["color"]  # fmt: skip
+        assert not np.allclose(combined.numpy(), fb["color"].numpy())
