@@ -180,6 +180,10 @@ def denoise_sequence(
     they are needed); each frame is sanitised, cut to the buffers the method requires or uses,
     and moved to ``device`` when the method asks for it.
 
+    With ``"auto"`` (and no ``params``), a method whose preparation still refuses the first
+    frame for what its pixels hold (no usable scene extent: a frame with no geometry hit) is
+    followed by the next one that accepts it, so the default fails only when no method can run.
+
     The method (``"auto"``: the best available one that accepts the first frame, see
     :func:`~mcdenoise.registry.choose_method`), its availability, the
     buffers of the first frame, the parameters and the device are checked before this returns;
@@ -210,10 +214,56 @@ def denoise_sequence(
     dev = resolve_device(device)
     if dev.type not in m.devices:
         raise InputError(f"method {m.name!r} does not run on {dev.type}")
+    if method == "auto" and not params:
+        return _auto_sequence(m, first, source, resolved, dev)
     return _run_sequence(m, itertools.chain([first], source), resolved, dev)
 
 
 _END = object()
+
+
+def _auto_sequence(
+    m: Method,
+    first: FeatureBuffers,
+    rest: Iterator[FeatureBuffers],
+    params: dict[str, Any],
+    dev: torch.device,
+) -> Iterator[DenoiseResult]:
+    """:func:`_run_sequence` of the default method ``m``; when its preparation refuses the
+    first frame for what its pixels hold (``MissingFeatureError``, e.g. depth and position
+    without a usable scene extent: a frame with no geometry hit) before any later frame was
+    read, the next method that accepts the frame runs instead, so the default never fails
+    where a method that can run exists."""
+    pulled = [0]
+
+    def counted() -> Iterator[FeatureBuffers]:
+        for frame in rest:
+            pulled[0] += 1
+            yield frame
+
+    later = counted()
+    tried: list[str] = []
+    while True:
+        results = _run_sequence(m, itertools.chain([first], later), params, dev)
+        try:
+            result = next(results)
+        except MissingFeatureError as err:
+            if pulled[0]:
+                raise
+            tried.append(m.name)
+            try:
+                m = choose_method(first, exclude=tried).method
+            except InputError:
+                raise err from None
+            if dev.type not in m.devices:
+                raise err from None
+            params = m.resolve_params(None)
+            continue
+        except StopIteration:
+            return
+        yield result
+        yield from results
+        return
 
 
 def _run_sequence(
@@ -673,14 +723,13 @@ def run_jobs(
     try:
         for job in plan.jobs:
             buffers = None
-            passed_over: tuple[tuple[str, str], ...] = ()
-            auto = job.method is None
-            if auto:
+            if job.method is None:
+                bar.set_postfix_str(f"{job.input.name} auto")
                 buffers = _load(job.input, read)
-                choice = choose_method(buffers)
-                passed_over = choice.skipped
-                dst = plan_outputs([job.input], out, choice.method.name, part=plan.part)[0]
-                job = DenoiseJob(job.input, dst, choice.method)
+                res, job, passed_over = _run_auto(job, buffers, plan, out, device, read, write)
+                bar.update(1)
+                yield JobOutcome(job, res, passed_over=passed_over, auto=True)
+                continue
             assert job.method is not None and job.output is not None
             bar.set_postfix_str(f"{job.input.name} {job.method.name}")
             try:
@@ -708,9 +757,51 @@ def run_jobs(
                 yield JobOutcome(job, skipped=str(err))
                 continue
             bar.update(1)
-            yield JobOutcome(job, res, passed_over=passed_over, auto=auto)
+            yield JobOutcome(job, res)
     finally:
         bar.close()
+
+
+def _run_auto(
+    job: DenoiseJob,
+    buffers: FeatureBuffers,
+    plan: DenoisePlan,
+    out: Path | None,
+    device: str | torch.device,
+    read: ReadOptions,
+    write: WriteOptions | None,
+) -> tuple[FileResult, DenoiseJob, tuple[tuple[str, str], ...]]:
+    """Denoise one input of ``--method auto``: the best method that accepts it; when that
+    method's preparation still refuses the file for what its pixels hold (e.g. no usable
+    scene extent), the next one (nothing is written by the one that refused)."""
+    passed_over: list[tuple[str, str]] = []
+    while True:
+        try:
+            choice = choose_method(buffers, exclude=[n for n, _ in passed_over])
+        except InputError:
+            if not passed_over:
+                raise
+            why = "; ".join(f"{n}: {r}" for n, r in passed_over)
+            raise InputError(f"no denoising method can run on {job.input.name} ({why})") from None
+        passed_over += choice.skipped
+        m = choice.method
+        dst = plan_outputs([job.input], out, m.name, part=plan.part)[0]
+        job = DenoiseJob(job.input, dst, m)
+        try:
+            res = denoise_file(
+                job.input,
+                dst,
+                m,
+                params=plan.params,
+                device=device,
+                read=read,
+                write=write,
+                buffers=buffers,
+            )
+        except MissingFeatureError as err:
+            passed_over.append((m.name, " ".join(str(err).split())))
+            continue
+        return res, job, tuple(passed_over)
 
 
 def _load(path: Path, read: ReadOptions) -> FeatureBuffers:

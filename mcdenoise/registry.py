@@ -19,7 +19,7 @@ Adding a method::
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 
 from mcdenoise.errors import InputError
@@ -128,14 +128,19 @@ class MethodChoice:
     skipped: tuple[tuple[str, str], ...] = ()
 
 
-def choose_method(buffers: FeatureBuffers) -> MethodChoice:
+def choose_method(buffers: FeatureBuffers, *, exclude: Collection[str] = ()) -> MethodChoice:
     """The default method for ``buffers``: the best available one that accepts them.
+
+    ``exclude``: names of methods not to consider (ones that already failed on this input;
+    the caller keeps their reasons).
 
     Raises:
         InputError: no method accepts the input (the message gives each one's reason).
     """
     skipped: list[tuple[str, str]] = []
     for m in methods():
+        if m.name in exclude:
+            continue
         reason = m.unavailable()
         if reason is not None:
             skipped.append((m.name, f"not available here: {reason}"))

@@ -6,7 +6,8 @@ renderer profile, are read as ``mcdenoise denoise`` reads them (profile detected
 the default (:func:`mcdenoise.registry.choose_method`) must be a method that accepts the input
 and whose preparation succeeds, and it must be the method ``docs/methods.md`` says the input
 gets; the chosen method is run for real on a few representative files, and the command line
-denoises a plain Mitsuba ``aov`` file (no variance) with no flags.
+denoises a plain Mitsuba ``aov`` file (no variance) with no flags. A frame whose pixels a
+method's preparation refuses (no geometry hit: no scene extent) gets the next method.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from mcdenoise import registry
 from mcdenoise.denoise import denoise, denoise_paths
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
+from mcdenoise.io.buffers import MissingFeatureError
 from mcdenoise.io.exr import write_exr
 from mcdenoise.method import Method
 from mcdenoise.methods.kalantari import model_for
@@ -280,6 +282,38 @@ def test_the_plain_mitsuba_aov_file_is_refused_by_kalantari_with_the_reason(
     for reason in skipped.values():
         assert "albedo_var, normal_var, depth_var, position_var" in reason
         assert "trained with" in reason
+
+
+def no_geometry() -> FeatureBuffers:
+    """Every buffer and variance, but no geometry hit: depth and position 0 everywhere (a
+    sky-only frame; Mitsuba writes 0 for misses), so there is no scene extent to normalise
+    them by and the learned methods' preparation refuses them for what the pixels hold."""
+    b = {k: torch.from_numpy(v) for k, v in scene().items()}
+    for g in ("depth", "position"):
+        b[g] = torch.zeros_like(b[g])
+        b[f"{g}_var"] = torch.zeros_like(b[f"{g}_var"])
+    return FeatureBuffers(b, spp=SPP, source="sky.exr")
+
+
+def test_a_frame_without_geometry_gets_a_method_that_runs(tmp_path: Path) -> None:
+    b = no_geometry()
+    first = registry.choose_method(b).method.name
+    with pytest.raises(MissingFeatureError):  # named explicitly, the first choice refuses
+        denoise(b, first, device="cpu")
+    result = denoise(b, device="cpu")  # the default goes on to the next method
+    assert result.method != first and bool(torch.isfinite(result.image).all())
+    save_buffers(tmp_path / "sky.exr", b)
+    r = CliRunner().invoke(
+        main,
+        ["denoise", str(tmp_path / "sky.exr"), "-v", "--threads", "1"],
+        catch_exceptions=False,
+    )
+    assert r.exit_code == 0, r.output
+    assert f"sky.exr: skipped {first}: " in r.stderr
+    assert r.stderr.splitlines()[-1] == (
+        f"sky.exr: chose {result.method} (the best available method that accepts it)"
+    )
+    assert [p.name for p in tmp_path.glob("sky_*.exr")] == [f"sky_{result.method}.exr"]
 
 
 # --- the contract: accepts, choose_method ---------------------------------------------------
