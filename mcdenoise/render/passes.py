@@ -126,9 +126,7 @@ def _jit_total(passes: Sequence[Mapping[str, Any]]) -> dict[str, float]:
 def _load_scene(
     job: ImageJob, plan: EffectPlan, config: RenderConfig, camera: Camera | None = None
 ) -> Any:
-    import mitsuba as mi
-
-    from mcdenoise.render.scenes import scene_dict
+    from mcdenoise.render.scenes import load_scene, scene_dict
 
     d = scene_dict(
         job.spec,
@@ -139,7 +137,7 @@ def _load_scene(
         camera=camera,
     )
     try:
-        return mi.load_dict(d)
+        return load_scene(d)
     except Exception as err:  # Mitsuba reports every load failure as a long RuntimeError
         first = next((ln.strip() for ln in str(err).splitlines() if ln.strip()), repr(err))
         raise RenderError(

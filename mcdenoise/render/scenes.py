@@ -188,6 +188,30 @@ def _mi() -> Any:
     return mi
 
 
+#: Dr.Jit worker threads while Mitsuba loads a scene. Mitsuba 3.9.1 (``llvm_ad_rgb``) never
+#: returns from loading an ``envmap`` with a file when Dr.Jit has ONE worker thread (all
+#: threads wait on a futex: what ``--threads 1``, or ``auto`` on a busy machine, used to do to
+#: every scene with an environment map file); with two it loads at once. Rendering itself is
+#: fine with one thread.
+LOAD_THREADS = 2
+
+
+def load_scene(d: dict[str, Any]) -> Any:
+    """``mi.load_dict(d)`` with at least :data:`LOAD_THREADS` Dr.Jit threads during the load
+    (the caller's thread count is restored afterwards)."""
+    import drjit as dr
+
+    mi = _mi()
+    before = int(dr.thread_count())
+    if before < LOAD_THREADS:
+        dr.set_thread_count(LOAD_THREADS)
+    try:
+        return mi.load_dict(d)
+    finally:
+        if before < LOAD_THREADS:
+            dr.set_thread_count(before)
+
+
 # --------------------------------------------------------------------------------------------
 # Camera
 # --------------------------------------------------------------------------------------------
