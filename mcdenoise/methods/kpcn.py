@@ -28,9 +28,12 @@ from mcdenoise.models.kpcn import STRIP, TILE, KpcnModel
 from mcdenoise.models.weights import SHIPPED, load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import (
     DEFAULT_PREFILTER,
+    EXPOSURE_MODES,
     PREFILTER_MODES,
     choose_source,
+    exposure_scale,
     prepare_tensors,
+    scale_exposure,
     source_for,
 )
 
@@ -42,6 +45,7 @@ def denoise_kpcn(
     *,
     source: str | None = None,
     prefilter: str = DEFAULT_PREFILTER,
+    exposure: str = "auto",
     tile: int = TILE,
     strip: int = STRIP,
 ) -> Tensor:
@@ -53,6 +57,9 @@ def denoise_kpcn(
         prefilter: which noisy guide features are prefiltered first, a key of
             :data:`~mcdenoise.prep.kpcn.PREFILTER_MODES` (default ``auto``: those without a
             variance buffer).
+        exposure: ``auto``: an image darker or brighter than the training renders is scaled
+            into :data:`~mcdenoise.prep.kpcn.EXPOSURE_RANGE` and the result back
+            (:func:`~mcdenoise.prep.kpcn.exposure_scale`); ``off``: as it is.
         tile: tile edge in pixels (rounded up to :attr:`KpcnModel.multiple`); the result does
             not depend on it (to float rounding).
         strip: rows of kernels materialised at once.
@@ -62,7 +69,11 @@ def denoise_kpcn(
         raise InputError(f"this kpcn model has no '{src}' source ({', '.join(model.card.sources)})")
     device = next(model.parameters()).device
     t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, src, prefilter).items()}
-    return model.denoise_tensors(t, src, tile=tile, strip=strip)[0]
+    k = exposure_scale(t["color"]) if exposure == "auto" else 1.0
+    if k == 1.0:
+        return model.denoise_tensors(t, src, tile=tile, strip=strip)[0]
+    out = model.denoise_tensors(scale_exposure(t, k), src, tile=tile, strip=strip)[0]
+    return out / k
 
 
 def _model(params: Mapping[str, Any]) -> KpcnModel:
@@ -101,11 +112,17 @@ def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> 
         raise InputError(
             f"kpcn: prefilter must be one of {', '.join(PREFILTER_MODES)}, got {prefilter!r}"
         )
+    exposure = str(params["exposure"])
+    if exposure not in EXPOSURE_MODES:
+        raise InputError(
+            f"kpcn: exposure must be one of {', '.join(EXPOSURE_MODES)}, got {exposure!r}"
+        )
     return denoise_kpcn(
         model,
         b,
         source=None if source == "auto" else source,
         prefilter=prefilter,
+        exposure=exposure,
         tile=int(params["tile"]),
     )
 
@@ -113,10 +130,16 @@ def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> 
 METHOD = Method(
     name="kpcn",
     summary="kernel-predicting CNN, source-aware encoder, 3-scale kernels (Bako 2017, "
-    "Vogels 2018); -p model=RUN, -p prefilter=auto|all|off",
+    "Vogels 2018); -p model=RUN, -p prefilter=auto|all|off, -p exposure=auto|off",
     requires=("color", "albedo", "normal"),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
-    defaults={"model": SHIPPED, "source": "auto", "prefilter": DEFAULT_PREFILTER, "tile": 1024},
+    defaults={
+        "model": SHIPPED,
+        "source": "auto",
+        "prefilter": DEFAULT_PREFILTER,
+        "exposure": "auto",
+        "tile": 1024,
+    },
     run=_run,
     check_input=_check,
     priority=22 if shipped_model_path("kpcn").is_file() else -1,

@@ -13,7 +13,8 @@ the guide features to comparable scales and picks up the variances that are pres
   the colour and would otherwise imprint that noise on the result; with
   ``estimate_missing=True`` a feature *without* a variance buffer (a Mitsuba ``aov`` file,
   Cycles) is prefiltered the same way with a variance estimated from its own neighbourhood
-  (:func:`estimate_feature_variance`);
+  (:func:`estimate_feature_variance`), at most what the colour's noise allows
+  (:func:`feature_noise_cap`);
 * ``color_var`` (variance of the mean) is averaged over channels and made robust with
   ``max(v, median_3×3(v))``: from a few samples the variance estimate is itself very noisy, and
   a pixel whose estimate came out near 0 would otherwise refuse all its neighbours. Without a
@@ -126,7 +127,7 @@ def estimate_variance(color: Tensor, *, bins: int = 16, firefly_sigmas: float = 
     nlf = torch.empty_like(mag)
     for i in range(b):
         li, mi = smooth[i].flatten(), mag[i].flatten()
-        edges = _quantile(li, torch.linspace(0, 1, bins + 1)).to(li.dtype)
+        edges = quantile_subsampled(li, torch.linspace(0, 1, bins + 1)).to(li.dtype)
         idx = torch.bucketize(li, edges[1:-1])
         sigma = torch.zeros(bins, dtype=mi.dtype, device=mi.device)
         for j in range(bins):
@@ -182,6 +183,26 @@ def _line_median(x: Tensor, dim: int, radius: int = 2) -> Tensor:
     return torch.stack(taps).median(dim=0).values
 
 
+#: Share of the colour's relative variance that :func:`feature_noise_cap` allows a feature.
+FEATURE_NOISE_CAP = 0.5
+
+
+def feature_noise_cap(color: Tensor, color_var: Tensor, feature: Tensor) -> Tensor:
+    """Upper bound ``(B, 1, H, W)`` of a feature's variance of the mean, from the colour's.
+
+    Colour and feature come from the same samples, and the colour is about the albedo times
+    the irradiance, so where the albedo (or the surface) varies inside a pixel the colour
+    varies with it: a feature's relative variance is at most about the colour's,
+    ``var(f) <= cap · var(c) / c² · mean_ch(f²)`` (``c`` the 3×3 mean luminance, cap
+    :data:`FEATURE_NOISE_CAP`). :func:`estimate_feature_variance` cannot tell noise from a
+    texture finer than its window; this bound can: on a well-converged render the colour's
+    variance is small, so the texture of the feature is not taken for noise and blurred.
+    """
+    lum = box_mean(color.mean(dim=1, keepdim=True), 1)
+    rel = color_var / (lum.square() + 1e-4)
+    return FEATURE_NOISE_CAP * rel * feature.square().mean(dim=1, keepdim=True)
+
+
 def prefilter_feature(
     feature: Tensor, variance: Tensor, settings: Mapping[str, Any] = PREFILTER
 ) -> Tensor:
@@ -191,7 +212,7 @@ def prefilter_feature(
         return non_local_means(feature, color_var=variance, **settings)
 
 
-def _quantile(x: Tensor, q: Tensor, dim: int = -1) -> Tensor:
+def quantile_subsampled(x: Tensor, q: Tensor, dim: int = -1) -> Tensor:
     """``torch.quantile`` in float64 on at most ~2^20 evenly strided samples along ``dim``
     (``torch.quantile`` refuses inputs above 2^24 elements; percentiles do not need them all)."""
     n = x.shape[dim]
@@ -210,12 +231,12 @@ def _robust_extent(buffers: FeatureBuffers) -> float | None:
         if hit is not None:
             p = p[:, hit.flatten()]
         if p.shape[1] > 0:
-            q = _quantile(p, torch.tensor([0.01, 0.99]), dim=1)
+            q = quantile_subsampled(p, torch.tensor([0.01, 0.99]), dim=1)
             diag = float((q[1] - q[0]).norm())
             if diag > 0:
                 return diag
     if "depth" in buffers and hit is not None and bool(hit.any()):
-        d = float(_quantile(buffers["depth"][0][hit], torch.tensor(0.99)))
+        d = float(quantile_subsampled(buffers["depth"][0][hit], torch.tensor(0.99)))
         if d > 0:
             return d
     return None
@@ -255,6 +276,12 @@ def prepare_inputs(
         return clean[name].to(device=device, dtype=dtype).unsqueeze(0)
 
     color = t("color")
+    # One sample per pixel has no variance of the mean (the renderer writes 0): estimate it.
+    usable_var = "color_var" in clean and buffers.spp != 1 and bool(clean["color_var"].max() > 0)
+    if usable_var:
+        color_var, estimated = robust_variance(t("color_var")), False
+    else:
+        color_var, estimated = estimate_variance(color), True
     wanted = [f for f in features if f in clean]
     extent = _robust_extent(clean) if {"depth", "position"} & set(wanted) else None
     feats: dict[str, Tensor] = {}
@@ -272,18 +299,13 @@ def prepare_inputs(
             if prefilter:
                 f = prefilter_feature(f, fvars[name])
         elif estimate_missing:
-            f = prefilter_feature(f, estimate_feature_variance(f), PREFILTER_ESTIMATED)
+            v = torch.minimum(estimate_feature_variance(f), feature_noise_cap(color, color_var, f))
+            f = prefilter_feature(f, v, PREFILTER_ESTIMATED)
             estimated_features.append(name)
         feats[name] = f
     albedo = feats.get("albedo")
     if albedo is None and "albedo" in clean and "albedo" in features:
         albedo = t("albedo")
-    # One sample per pixel has no variance of the mean (the renderer writes 0): estimate it.
-    usable_var = "color_var" in clean and buffers.spp != 1 and bool(clean["color_var"].max() > 0)
-    if usable_var:
-        color_var, estimated = robust_variance(t("color_var")), False
-    else:
-        color_var, estimated = estimate_variance(color), True
     return FilterInputs(
         color=color,
         color_var=color_var,
@@ -322,6 +344,7 @@ def guide_args(
 
 
 __all__ = [
+    "FEATURE_NOISE_CAP",
     "PREFILTER",
     "PREFILTER_ESTIMATED",
     "FilterInputs",
@@ -329,8 +352,10 @@ __all__ = [
     "demodulate_inputs",
     "estimate_feature_variance",
     "estimate_variance",
+    "feature_noise_cap",
     "guide_args",
     "prefilter_feature",
     "prepare_inputs",
+    "quantile_subsampled",
     "robust_variance",
 ]

@@ -110,6 +110,8 @@ class TrainConfig:
         augment: random flips, 90° rotations and colour-channel permutations of the crops.
         exposure: KPCN: scale each crop's colour and reference by ``2^u``, ``u`` uniform in
             ``[-exposure, exposure]`` stops (the variance by the square); 0 = off.
+        normalize_exposure: KPCN: scale each training image as ``kpcn -p exposure=auto``
+            does at inference (:func:`mcdenoise.prep.kpcn.exposure_scale`; the reference too).
         prefilter: KPCN: how the ``basic`` crops' albedo and normal are prefiltered, as
             ``kpcn -p prefilter=`` does at inference on an input without feature variances
             (``auto`` or ``all``: the variance estimated from the feature; ``off``: as
@@ -160,6 +162,7 @@ class TrainConfig:
     sources: list[str] = field(default_factory=lambda: ["full", "basic"])
     augment: bool = True
     exposure: float = 0.0
+    normalize_exposure: bool = False
     prefilter: str = "off"
     amp: str = "off"
     finetune_encoder: str = ""

@@ -40,7 +40,7 @@ from mcdenoise.losses import compute_loss, crop_log_relmse
 from mcdenoise.models.encoders import SOURCES, channel_names, encoder, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
-from mcdenoise.prep.kpcn import COLOR_TENSORS, prepare_tensors
+from mcdenoise.prep.kpcn import COLOR_TENSORS, exposure_scale, prepare_tensors, scale_exposure
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
@@ -86,7 +86,7 @@ def use_basic_features(batch: dict[str, Tensor], basic: Tensor) -> dict[str, Ten
     return out
 
 
-def scale_exposure(batch: dict[str, Tensor], scale: Tensor) -> dict[str, Tensor]:
+def augment_exposure(batch: dict[str, Tensor], scale: Tensor) -> dict[str, Tensor]:
     """Colour and reference of each crop times ``scale`` ``(B,)``, the colour variance times
     its square (albedo, normal, depth, position and their variances do not change)."""
     s = scale.view(-1, 1, 1, 1)
@@ -276,7 +276,10 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
             # and normal are prefiltered with a variance estimated from themselves
             basic = prepare_tensors(buffers.subset(list(SOURCES["basic"])), "basic", "auto")
             t.update({f"{k}{BASIC_SUFFIX}": basic[k] for k in BASIC_PREFILTERED})
-        return {**t, "reference": ref}
+        t["reference"] = ref
+        if cfg.normalize_exposure:
+            t = scale_exposure(t, exposure_scale(t["color"]))
+        return t
 
     crop = cfg.patch + 2 * cfg.margin
     train_items, val_items, report = load_split(cfg, prepare, crop=crop, progress=progress)
@@ -316,7 +319,7 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
         n = batch["color"].shape[0]
         if cfg.exposure > 0:
             stops = (torch.rand(n, generator=g) * 2 - 1) * cfg.exposure
-            batch = scale_exposure(batch, torch.exp2(stops))
+            batch = augment_exposure(batch, torch.exp2(stops))
         offset = int(torch.randint(len(codes), (), generator=g))
         batch["source"] = codes[(torch.arange(n) + offset) % len(codes)]
         return use_basic_features(batch, batch["source"] == basic_code)
@@ -346,8 +349,8 @@ __all__ = [
     "BASIC_SUFFIX",
     "DEFAULT_KERNEL",
     "KpcnTask",
+    "augment_exposure",
     "build",
-    "scale_exposure",
     "source_stats",
     "train_kpcn",
     "use_basic_features",

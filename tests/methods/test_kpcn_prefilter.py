@@ -1,6 +1,7 @@
-"""The kpcn method's ``prefilter`` parameter (issue 21): noisy albedo / normal without a
-variance buffer are prefiltered by default; ``off`` keeps the old behaviour; a bad value is one
-clear error."""
+"""The kpcn method's ``prefilter`` and ``exposure`` parameters (issue 21): noisy albedo /
+normal without a variance buffer are prefiltered by default, an input darker or brighter than
+the training renders is scaled into their range; ``off`` keeps the old behaviour; a bad value
+is one clear error."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import torch
 from mcdenoise.denoise import denoise
 from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers
+from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.methods.kpcn import METHOD
 from mcdenoise.models.weights import shipped_model_path
 
@@ -38,7 +40,24 @@ def test_prefilter_defaults_to_auto_and_changes_only_inputs_without_variances() 
     assert torch.equal(full_auto, full_off)
 
 
-def test_a_bad_prefilter_value_is_one_clear_error() -> None:
+def test_a_bad_prefilter_or_exposure_value_is_one_clear_error() -> None:
     b = load_buffers(SAMPLES / "cornell_spp4.exr").crop(0, 0, 32, 32)
     with pytest.raises(InputError, match="prefilter must be one of auto, all, off"):
         denoise(b, "kpcn", params={"prefilter": "yes"})
+    with pytest.raises(InputError, match="exposure must be one of auto, off"):
+        denoise(b, "kpcn", params={"exposure": "on"})
+
+
+def test_exposure_auto_makes_a_dark_or_bright_input_scale_invariant() -> None:
+    b = load_buffers(SAMPLES / "cornell_spp4.exr").crop(32, 32, 64, 64)
+    basic = b.subset(["color", "albedo", "normal"])
+
+    def run(scale: float, exposure: str = "auto") -> torch.Tensor:
+        x = FeatureBuffers({**basic.buffers, "color": basic["color"] * scale}, spp=basic.spp)
+        return denoise(x, "kpcn", params={"exposure": exposure}).image / scale
+
+    # far below and far above the range: both are brought to the same end of it
+    torch.testing.assert_close(run(1e-3), run(2e-3), rtol=1e-4, atol=1e-6)
+    torch.testing.assert_close(run(1e3), run(5e2), rtol=1e-4, atol=1e-6)
+    # with exposure off the network sees the scale (what the normalisation removes)
+    assert not torch.allclose(run(1e3, "off"), run(5e2, "off"), rtol=1e-2, atol=1e-6)

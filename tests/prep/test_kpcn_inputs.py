@@ -11,7 +11,16 @@ from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import MissingFeatureError
 from mcdenoise.models.encoders import SOURCES
-from mcdenoise.prep.kpcn import PREPARED, choose_source, prepare_tensors, source_for
+from mcdenoise.prep.kpcn import (
+    EXPOSURE_QUANTILE,
+    EXPOSURE_RANGE,
+    PREPARED,
+    choose_source,
+    exposure_scale,
+    prepare_tensors,
+    scale_exposure,
+    source_for,
+)
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 ALL = list(SOURCES)  # full, basic, color
@@ -75,3 +84,21 @@ def test_prefilter_modes_touch_only_the_features_they_name() -> None:
     assert torch.equal(auto["color"], off["color"])
     with pytest.raises(InputError, match="prefilter must be one of auto, all, off"):
         prepare_tensors(basic, "basic", "on")
+
+
+def test_exposure_scale_brings_the_level_into_the_range_only_when_outside() -> None:
+    lo, hi = EXPOSURE_RANGE
+    g = torch.Generator().manual_seed(0)
+    base = torch.rand(3, 40, 50, generator=g)
+    level = float(torch.quantile(base.mean(0).flatten(), EXPOSURE_QUANTILE))
+    inside = base * (0.5 * (lo + hi) / level)
+    assert exposure_scale(inside) == 1.0
+    dark, bright = base * (0.1 * lo / level), base * (10 * hi / level)
+    assert exposure_scale(dark) == pytest.approx(10.0, rel=1e-4)
+    assert exposure_scale(bright) == pytest.approx(0.1, rel=1e-4)
+    assert exposure_scale(torch.zeros(3, 8, 8)) == 1.0  # black: nothing to scale
+    t = {"color": dark, "color_var": dark[:1] * 0 + 2.0, "albedo": base}
+    s = scale_exposure(t, 10.0)
+    torch.testing.assert_close(s["color"], dark * 10)
+    torch.testing.assert_close(s["color_var"], t["color_var"] * 100)
+    assert s["albedo"] is base

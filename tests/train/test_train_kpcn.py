@@ -22,15 +22,15 @@ from mcdenoise.io import load_buffers
 from mcdenoise.losses import l1
 from mcdenoise.methods.kpcn import denoise_kpcn
 from mcdenoise.models.kpcn import KpcnModel
-from mcdenoise.prep.kpcn import COLOR_TENSORS, prepare_tensors
+from mcdenoise.prep.kpcn import COLOR_TENSORS, exposure_scale, prepare_tensors
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import load_config
 from mcdenoise.train.dataset import augment
 from mcdenoise.train.kpcn import (
     BASIC_SUFFIX,
     UNUSED_SCALE_WEIGHT,
+    augment_exposure,
     build,
-    scale_exposure,
     train_kpcn,
     use_basic_features,
 )
@@ -517,7 +517,7 @@ def test_exposure_scales_colour_reference_and_variance_only() -> None:
         k: torch.rand(2, c, 4, 4, generator=g)
         for k, c in (("color", 3), ("reference", 3), ("color_var", 1), ("albedo", 3))
     }
-    out = scale_exposure(batch, torch.tensor([2.0, 0.5]))
+    out = augment_exposure(batch, torch.tensor([2.0, 0.5]))
     torch.testing.assert_close(out["color"][0], 2 * batch["color"][0])
     torch.testing.assert_close(out["reference"][1], 0.5 * batch["reference"][1])
     torch.testing.assert_close(out["color_var"][0], 4 * batch["color_var"][0])
@@ -528,6 +528,15 @@ def test_training_with_exposure_and_prefilter_runs(tiny_dataset: Path, tmp_path:
     out = tmp_path / "run"
     train_kpcn(cfg(tiny_dataset, exposure=2, prefilter="auto"), out, progress=False)
     assert KpcnModel.load(out).card.training["config"]["prefilter"] == "auto"
+    # normalize_exposure: every training image (noisy and reference alike) is brought into
+    # the range inference brings it to
+    _, plain, _ = build(cfg(tiny_dataset, augment="false"))
+    _, normed, _ = build(cfg(tiny_dataset, augment="false", normalize_exposure="true"))
+    for a, b in zip(plain.items, normed.items, strict=True):
+        k = exposure_scale(a.tensors["color"])
+        torch.testing.assert_close(b.tensors["color"], a.tensors["color"] * k)
+        torch.testing.assert_close(b.tensors["reference"], a.tensors["reference"] * k)
+        assert exposure_scale(b.tensors["color"]) == pytest.approx(1.0, rel=1e-5)
     with pytest.raises(InputError, match="prefilter must be"):
         cfg(tiny_dataset, prefilter="some")
     with pytest.raises(InputError, match="exposure must be"):
