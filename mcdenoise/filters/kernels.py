@@ -50,6 +50,7 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters._common import check_image, check_kernel_size
+from mcdenoise.filters.parallel import parallel_map, workers
 
 #: Default output tile edge of :func:`apply_kernels` (measured fastest on 2 cores, see
 #: ``benchmarks/bench_filters.py``: its per-offset work is two streaming ops).
@@ -192,12 +193,15 @@ def _accumulate(
     out-of-image taps) and the out-of-image share is redistributed over the in-image taps
     (see :func:`apply_kernels` with ``normalize=False``). Only the thin border strips where a
     tap falls outside the image are read for that.
+
+    Tiles run in parallel (:func:`_run_tiles`).
     """
     b, c, h, w = image.shape
     r = k // 2
     tiny = torch.finfo(image.dtype).tiny
     out = torch.empty_like(image)
-    for ty0, ty1, tx0, tx1 in _tiles(h, w, *tile):
+
+    def one_tile(ty0: int, ty1: int, tx0: int, tx1: int) -> None:
         shape = (ty1 - ty0, tx1 - tx0)
         acc = image.new_zeros((b, c, *shape))  # Σ w x over in-image taps   (B, C, th, tw)
         wsum = image.new_zeros((b, 1, *shape))  # Σ w over in-image taps    (B, 1, th, tw)
@@ -231,7 +235,23 @@ def _accumulate(
         else:
             res = torch.where(ok, acc * (mass / safe), centre * mass)
         out[:, :, ty0:ty1, tx0:tx1] = res
+
+    _run_tiles(one_tile, h, w, tile, image)
     return out
+
+
+def _run_tiles(
+    fn: Callable[[int, int, int, int], None], h: int, w: int, tile: tuple[int, int], like: Tensor
+) -> None:
+    """Call ``fn(ty0, ty1, tx0, tx1)`` for every output tile, the tiles shared by the worker
+    threads of :func:`~mcdenoise.filters.parallel.parallel_map` (on the CPU, without autograd;
+    each tile computes what it computes alone, so the result does not depend on the thread
+    count). With fewer tiles than workers the tiles are cut into that many row bands."""
+    th, tw = tile
+    n = workers()
+    if n > 1 and -(-h // th) * -(-w // tw) < n:
+        th = max(1, -(-h // n))
+    parallel_map(lambda t: fn(*t), _tiles(h, w, th, tw), like)
 
 
 def apply_kernels(

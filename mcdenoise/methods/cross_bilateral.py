@@ -18,6 +18,7 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.cross_bilateral import cross_bilateral
+from mcdenoise.filters.parallel import single_threaded_ops
 from mcdenoise.filters.settings import GUIDE_FEATURES, XbfSettings, with_overrides
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method, dataclass_defaults
@@ -76,7 +77,8 @@ def denoise_xbf(buffers: FeatureBuffers, **overrides: object) -> Tensor:
 
 
 def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
-    return denoise_xbf(b, **params)
+    with single_threaded_ops():  # parallel over tiles instead (filters/parallel.py)
+        return denoise_xbf(b, **params)
 
 
 METHOD = Method(

@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError
+from mcdenoise.filters.parallel import single_threaded_ops
 from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.method import Method
@@ -36,7 +37,7 @@ from mcdenoise.models.weights import (
     shipped_model_for,
     shipped_model_path,
 )
-from mcdenoise.prep.kalantari import check_inputs, prepare_for_model
+from mcdenoise.prep.kalantari import check_inputs, item_features, prepare_for_model
 
 
 def denoise_kalantari(
@@ -47,8 +48,10 @@ def denoise_kalantari(
     Raises:
         MissingFeatureError: the image lacks a guide the model was trained with.
     """
-    item = prepare_for_model(model.card, buffers)
-    return model.denoise_item(item, chunk_rows=chunk_rows)
+    with single_threaded_ops():  # parallel over tiles and row bands instead (filters/parallel.py)
+        item = prepare_for_model(model.card, buffers, features=False)
+        feats = item_features(item, buffers.spp, regional=model.card.regional)
+        return model.denoise_item(item, chunk_rows=chunk_rows, features=feats)
 
 
 def model_for(kind: str, buffers: FeatureBuffers, model: str) -> KalantariModel:

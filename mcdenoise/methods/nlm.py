@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.filters.nlm import non_local_means
+from mcdenoise.filters.parallel import single_threaded_ops
 from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, with_overrides
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method, dataclass_defaults
@@ -69,7 +70,8 @@ def denoise_nlm(buffers: FeatureBuffers, **overrides: object) -> Tensor:
 
 
 def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
-    return denoise_nlm(b, **params)
+    with single_threaded_ops():  # parallel over tiles instead (filters/parallel.py)
+        return denoise_nlm(b, **params)
 
 
 METHOD = Method(

@@ -40,7 +40,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,6 +51,7 @@ from mcdenoise import __version__
 from mcdenoise.errors import InputError
 from mcdenoise.filters.cross_bilateral import cross_bilateral
 from mcdenoise.filters.nlm import non_local_means
+from mcdenoise.filters.parallel import parallel_map
 from mcdenoise.filters.settings import (
     GUIDE_FEATURES,
     NlmSettings,
@@ -272,15 +273,35 @@ class KalantariModel(nn.Module):
         return self.filter(batch, offsets)
 
     @torch.no_grad()
-    def denoise_item(self, item: Mapping[str, Tensor], *, chunk_rows: int = 256) -> Tensor:
+    def denoise_item(
+        self,
+        item: Mapping[str, Tensor],
+        *,
+        chunk_rows: int = 256,
+        features: Callable[[int, int], Tensor] | None = None,
+    ) -> Tensor:
         """Denoise one prepared image ``{name: (C, H, W)}``; returns ``(3, H, W)`` float32
-        linear HDR colour (finite, >= 0). The MLP runs on ``chunk_rows`` rows at a time."""
-        batch = {k: v[None] for k, v in item.items()}
-        feats = batch["features"]
-        rows = [
-            self.offsets(feats[..., y : y + chunk_rows, :])
-            for y in range(0, feats.shape[-2], chunk_rows)
-        ]
+        linear HDR colour (finite, >= 0).
+
+        The MLP runs on ``chunk_rows`` rows at a time, the chunks shared by the worker threads
+        of :func:`~mcdenoise.filters.parallel.parallel_map`. ``features(y0, y1)`` gives the raw
+        features ``(1, F, y1 - y0, W)`` of rows ``[y0, y1)`` (``prep/kalantari.py``'s
+        ``item_features``) for an item without ``features``, so no ``F × H × W`` tensor exists.
+        """
+        batch = {k: v[None] for k, v in item.items() if k != "features"}
+        h = batch["irr"].shape[-2]
+        if features is None:
+            feats = item["features"][None]
+
+            def features(y0: int, y1: int) -> Tensor:
+                return feats[..., y0:y1, :]
+
+        get = features
+        rows = parallel_map(
+            lambda y: self.offsets(get(y, min(y + chunk_rows, h))),
+            range(0, h, chunk_rows),
+            like=batch["irr"],
+        )
         out = self.filter(batch, torch.cat(rows, dim=-2))
         return torch.nan_to_num(out[0], nan=0.0, posinf=0.0, neginf=0.0).float()
 

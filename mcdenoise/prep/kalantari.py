@@ -49,7 +49,7 @@ normalisation statistics); :func:`compute_features` returns its channels in that
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -61,6 +61,9 @@ from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.models.features import REGION, WINDOWS, feature_names
 from mcdenoise.models.kalantari import ModelCard
 from mcdenoise.prep.inputs import FilterInputs, demodulate_inputs, prepare_inputs
+
+#: Raw features of rows ``[y0, y1)`` of a prepared item (:func:`item_features`).
+FeatureFn = Callable[[int, int], Tensor]
 
 
 def _local_std(x: Tensor, w: int) -> Tensor:
@@ -87,6 +90,11 @@ def _mad3(x: Tensor) -> Tensor:
     return torch.stack(dev).mean(0).mean(1, keepdim=True)
 
 
+#: Rows of context the features of a row depend on: the regional mean (``REGION // 2``) of a
+#: local statistic (at most ``max(WINDOWS) // 2``, or 2 for the 3×3 MAD and the gradients).
+FEATURE_HALO = REGION // 2 + max(max(WINDOWS) // 2, 2)
+
+
 def compute_features(
     inp: FilterInputs,
     irradiance: Tensor,
@@ -94,6 +102,7 @@ def compute_features(
     spp: float | None,
     *,
     regional: bool = False,
+    rows: tuple[int, int] | None = None,
 ) -> tuple[Tensor, list[str]]:
     """Raw (un-normalised) features ``(1, F, H, W)`` and their names.
 
@@ -104,14 +113,53 @@ def compute_features(
         spp: samples per pixel, or ``None`` when unknown (the ``spp`` feature is then NaN and
             :meth:`~mcdenoise.models.features.FeatureStats.normalize` replaces it by the training mean).
         regional: also the regional means (see the module docstring).
+        rows: only the rows ``[y0, y1)`` (``(1, F, y1 - y0, W)``), computed from those rows
+            and :data:`FEATURE_HALO` rows of context on each side: the same values as the
+            whole image's, with memory for a band only.
     """
+    guides = [g for g in GUIDE_FEATURES if g in inp.features]
+    with_vars = [g for g in guides if g in inp.feature_vars]
+    feats = guide_features(
+        {g: inp.features[g] for g in guides},
+        {g: inp.feature_vars[g] for g in with_vars},
+        irradiance,
+        irradiance_var,
+        spp,
+        regional=regional,
+        rows=rows,
+    )
+    return feats, feature_names(guides, with_vars, regional)
+
+
+def guide_features(
+    guides: Mapping[str, Tensor],
+    guide_vars: Mapping[str, Tensor],
+    irradiance: Tensor,
+    irradiance_var: Tensor,
+    spp: float | None,
+    *,
+    regional: bool = False,
+    rows: tuple[int, int] | None = None,
+) -> Tensor:
+    """:func:`compute_features` from the prepared guides ``(1, C, H, W)`` (name -> tensor, in
+    :data:`GUIDE_FEATURES` order) and the variances of those the model uses."""
     _, _, h, w = irradiance.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    if not 0 <= y0 < y1 <= h:
+        raise ValueError(f"rows {rows} outside the image's {h} rows")
+    # The band and its context; outputs are cropped back to [y0, y1) at the end.
+    c0, c1 = max(0, y0 - FEATURE_HALO), min(h, y1 + FEATURE_HALO)
+    if (c0, c1) != (0, h):
+        irradiance = irradiance[..., c0:c1, :]
+        irradiance_var = irradiance_var[..., c0:c1, :]
+        guides = {g: f[..., c0:c1, :] for g, f in guides.items()}
+        guide_vars = {g: v[..., c0:c1, :] for g, v in guide_vars.items()}
     dt, dev = irradiance.dtype, irradiance.device
     ys = (
         torch.linspace(0, 1, h, dtype=dt, device=dev)
         if h > 1
         else torch.zeros(1, dtype=dt, device=dev)
-    )
+    )[c0:c1]
     xs = (
         torch.linspace(0, 1, w, dtype=dt, device=dev)
         if w > 1
@@ -121,30 +169,47 @@ def compute_features(
     color = torch.log1p(irradiance.clamp_min(0))
     lum_lin = irradiance.clamp_min(0).mean(1, keepdim=True)
     lum = torch.log1p(lum_lin)
-    guides = [g for g in GUIDE_FEATURES if g in inp.features]
+    names = [g for g in GUIDE_FEATURES if g in guides]
     chans: list[Tensor] = [sx[None, None], sy[None, None], color]
-    chans += [inp.features[g] for g in guides]
+    chans += [guides[g] for g in names]
     lum_std = [_local_std(lum, k) for k in WINDOWS]
     chans += [box_mean(lum, k // 2) for k in WINDOWS] + lum_std
-    for g in guides:
-        chans += [_local_std(inp.features[g], k) for k in WINDOWS]
-    grads = [_grad(lum)] + [_grad(inp.features[g]) for g in guides]
+    for g in names:
+        chans += [_local_std(guides[g], k) for k in WINDOWS]
+    grads = [_grad(lum)] + [_grad(guides[g]) for g in names]
     chans += grads
     chans += [_mad3(lum)]
     relvar = torch.log((irradiance_var + 1e-12) / (lum_lin.square() + 1e-4))
     chans += [relvar]
-    with_vars = [g for g in guides if g in inp.feature_vars]
-    chans += [torch.log(inp.feature_vars[g].mean(1, keepdim=True) + 1e-6) for g in with_vars]
+    chans += [
+        torch.log(guide_vars[g].mean(1, keepdim=True) + 1e-6) for g in names if g in guide_vars
+    ]
     s = math.log2(spp) if spp else math.nan
     chans += [torch.full_like(lum, s)]
     if regional:
         r = REGION // 2
         chans += [box_mean(x, r) for x in [relvar, lum_std[WINDOWS.index(7)], *grads]]
+    if (c0, c1) != (y0, y1):
+        chans = [x[..., y0 - c0 : y1 - c0, :] for x in chans]
     feats = torch.cat(chans, dim=1)
-    names = feature_names(guides, with_vars, regional)
-    if feats.shape[1] != len(names):  # a programming error, not an input error
-        raise AssertionError(f"{feats.shape[1]} feature channels for {len(names)} names")
-    return feats, names
+    expected = len(feature_names(names, [g for g in names if g in guide_vars], regional))
+    if feats.shape[1] != expected:  # a programming error, not an input error
+        raise AssertionError(f"{feats.shape[1]} feature channels for {expected} names")
+    return feats
+
+
+def item_features(item: Mapping[str, Tensor], spp: float | None, *, regional: bool) -> FeatureFn:
+    """The features of a prepared item (:func:`prepare_item` with ``features=False``) as a
+    function of the rows: ``fn(y0, y1) -> (1, F, y1 - y0, W)``, equal to those rows of
+    :func:`compute_features` (what ``features=True`` stores)."""
+    guides = {g: item[f"feat.{g}"][None] for g in GUIDE_FEATURES if f"feat.{g}" in item}
+    gvars = {g: item[f"fvar.{g}"][None] for g in guides if f"fvar.{g}" in item}
+    irr, var = item["irr"][None], item["irr_var"][None]
+
+    def rows(y0: int, y1: int) -> Tensor:
+        return guide_features(guides, gvars, irr, var, spp, regional=regional, rows=(y0, y1))
+
+    return rows
 
 
 def check_inputs(card: ModelCard, buffers: FeatureBuffers) -> None:
@@ -170,6 +235,7 @@ def prepare_item(
     guide_vars: Sequence[str] | None = None,
     *,
     regional: bool = False,
+    features: bool = True,
 ) -> dict[str, Tensor]:
     """Filter inputs and raw features of one image, ``{name: (C, H, W)}``.
 
@@ -179,7 +245,9 @@ def prepare_item(
     Keys: ``color`` (sanitised noisy colour), ``irr``/``irr_var`` (what the filter averages and
     its variance), ``factor`` (remodulation, ones without albedo), ``feat.<g>``/``fvar.<g>``
     (guides as :func:`~mcdenoise.prep.inputs.prepare_inputs` normalises them), ``features``
-    (raw features), and ``reference`` when given.
+    (raw features; not with ``features=False``: :func:`item_features` computes them a band
+    of rows at a time, the same values without an ``F × H × W`` tensor), and ``reference`` when
+    given.
     """
     inp: FilterInputs = prepare_inputs(
         buffers, features=tuple(guides), prefilter=settings.prefilter
@@ -192,14 +260,14 @@ def prepare_item(
     if guide_vars is not None:
         inp.feature_vars = {g: v for g, v in inp.feature_vars.items() if g in guide_vars}
     irr, var, factor = demodulate_inputs(inp, enabled=settings.demodulate, eps=settings.albedo_eps)
-    feats, _ = compute_features(inp, irr, var, buffers.spp, regional=regional)
     out = {
         "color": inp.color[0],
         "irr": irr[0],
         "irr_var": var[0],
         "factor": (factor if factor is not None else torch.ones_like(irr))[0],
-        "features": feats[0],
     }
+    if features:
+        out["features"] = compute_features(inp, irr, var, buffers.spp, regional=regional)[0][0]
     for g in guides:
         out[f"feat.{g}"] = inp.features[g][0]
         if g in inp.feature_vars:
@@ -210,10 +278,15 @@ def prepare_item(
 
 
 def prepare_for_model(
-    card: ModelCard, buffers: FeatureBuffers, reference: Tensor | None = None
+    card: ModelCard,
+    buffers: FeatureBuffers,
+    reference: Tensor | None = None,
+    *,
+    features: bool = True,
 ) -> dict[str, Tensor]:
     """The item :meth:`~mcdenoise.models.kalantari.KalantariModel.filter` needs for one image
-    (:func:`prepare_item` with the model's kind, settings, guides and guide variances).
+    (:func:`prepare_item` with the model's kind, settings, guides and guide variances;
+    ``features=False``: without the features, see :func:`item_features`).
 
     Raises:
         MissingFeatureError: the image lacks a guide the model was trained with.
@@ -227,7 +300,17 @@ def prepare_for_model(
         reference,
         card.guide_vars,
         regional=card.regional,
+        features=features,
     )
 
 
-__all__ = ["check_inputs", "compute_features", "prepare_for_model", "prepare_item"]
+__all__ = [
+    "FEATURE_HALO",
+    "FeatureFn",
+    "check_inputs",
+    "compute_features",
+    "guide_features",
+    "item_features",
+    "prepare_for_model",
+    "prepare_item",
+]
