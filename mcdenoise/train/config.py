@@ -121,6 +121,10 @@ class TrainConfig:
             the low precision, the kernel softmax, kernel application and loss in float32.
         finetune_encoder: train only the encoder of this source against a frozen trunk
             (Vogels 2018); needs ``base``.
+        finetune_keep: with ``finetune_encoder``, start from the base's own encoder (and
+            normalisation statistics) of that source instead of a fresh one: e.g. adapt the
+            ``basic`` encoder to prefiltered features while every other weight, and so the
+            ``full`` source's results, stay exactly the base's.
         base: run folder or model file to start from: with ``finetune_encoder``, its trunk
             is kept frozen; alone (kpcn), the whole model is trained further with this
             run's schedule (its architecture must match the config's).
@@ -166,6 +170,7 @@ class TrainConfig:
     prefilter: str = "off"
     amp: str = "off"
     finetune_encoder: str = ""
+    finetune_keep: bool = False
     base: str = ""
     guides: list[str] = field(default_factory=lambda: ["albedo", "normal", "depth", "position"])
     regional: bool = False
@@ -214,6 +219,10 @@ class TrainConfig:
                 f"prefilter must be auto, all or off, got {self.prefilter!r}",
             ),
             (self.amp in AMP_MODES, f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}"),
+            (
+                not self.finetune_keep or bool(self.finetune_encoder),
+                "finetune_keep needs finetune_encoder (the source whose encoder is kept)",
+            ),
             (
                 not self.finetune_encoder or bool(self.base),
                 "finetune_encoder needs base (the run folder whose trunk is kept)",

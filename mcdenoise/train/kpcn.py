@@ -196,15 +196,21 @@ class KpcnTask:
 
 
 def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
-    """The base model with a fresh encoder for ``cfg.finetune_encoder``; all else frozen."""
+    """The base model with a fresh encoder for ``cfg.finetune_encoder`` (with
+    ``cfg.finetune_keep``: the base's own encoder and statistics of that source, trained
+    further); all else frozen."""
     src = cfg.finetune_encoder
     if src not in SOURCES:
         raise InputError(f"unknown source {src!r}; known: {', '.join(SOURCES)}")
     base = KpcnModel.load(cfg.base)
     if base.card.encoder != "source-aware":
         raise InputError(f"{cfg.base}: a shared-encoder model has no per-source encoder to train")
+    keep = cfg.finetune_keep
+    if keep and src not in base.card.sources:
+        raise InputError(f"{cfg.base}: finetune_keep needs a base with a '{src}' encoder")
     stats = dict(base.card.stats)
-    stats[src] = source_stats(train_items, src)
+    if not keep:
+        stats[src] = source_stats(train_items, src)
     sources = [s for s in SOURCES if s in base.card.sources or s == src]
     card = KpcnCard(
         sources,
@@ -217,11 +223,14 @@ def _finetune_model(cfg: TrainConfig, train_items: Sequence[Item]) -> KpcnModel:
         albedo_kernels=base.card.albedo_kernels,
     )
     model = KpcnModel(card)
-    state = {k: v for k, v in base.state_dict().items() if not k.startswith(f"norms.{src}.")}
-    state = {k: v for k, v in state.items() if not k.startswith(f"encoders.{src}.")}
+    state = base.state_dict()
+    if not keep:
+        state = {k: v for k, v in state.items() if not k.startswith(f"norms.{src}.")}
+        state = {k: v for k, v in state.items() if not k.startswith(f"encoders.{src}.")}
     _, unexpected = model.load_state_dict(state, strict=False)
     assert not unexpected, unexpected
-    model.encoders[src] = encoder(len(channel_names(src)), card.channels[0])
+    if not keep:
+        model.encoders[src] = encoder(len(channel_names(src)), card.channels[0])
     for name, p in model.named_parameters():
         p.requires_grad_(name.startswith(f"encoders.{src}."))
     return model

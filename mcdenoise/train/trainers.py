@@ -65,7 +65,11 @@ _KPCN_KEYS = frozenset(
         "augment",
         "asym_slope",
         "finetune_encoder",
+        "finetune_keep",
         "base",
+        "exposure",
+        "normalize_exposure",
+        "prefilter",
     }
 )
 

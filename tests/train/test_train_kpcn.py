@@ -541,3 +541,24 @@ def test_training_with_exposure_and_prefilter_runs(tiny_dataset: Path, tmp_path:
         cfg(tiny_dataset, prefilter="some")
     with pytest.raises(InputError, match="exposure must be"):
         cfg(tiny_dataset, exposure=-1)
+
+
+def test_finetune_keep_trains_the_base_encoder_further_and_nothing_else(
+    base_run: Path, tiny_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    start = _record_start(monkeypatch, "_finetune_model")
+    out = tmp_path / "basic"
+    kw = {"base": base_run, "finetune_encoder": "basic", "finetune_keep": "true", "lr": 1e-2}
+    train_kpcn(cfg(tiny_dataset, prefilter="auto", **kw), out, progress=False)
+    base, tuned = KpcnModel.load(base_run), KpcnModel.load(out)
+    old, new = base.state_dict(), tuned.state_dict()
+    assert set(new) == set(old)
+    for k, v in old.items():
+        assert torch.equal(start[k], v), k  # it started from the base's own encoder
+    moved = [k for k in new if not torch.equal(new[k], old[k])]
+    assert moved and all(k.startswith("encoders.basic.") for k in moved)
+    assert tuned.card.stats["basic"].mean == base.card.stats["basic"].mean
+    with pytest.raises(InputError, match="finetune_keep needs finetune_encoder"):
+        cfg(tiny_dataset, finetune_keep="true")
+    with pytest.raises(InputError, match="needs a base with a 'color' encoder"):
+        build(cfg(tiny_dataset, **{**kw, "finetune_encoder": "color"}))
