@@ -175,6 +175,9 @@ def measure(
     rows: list[Row] = []
     done: dict[str, Row] = {}
     for method in (DEFAULT, *methods):
+        if method in done and not params.get(method):  # the default ran it: same output
+            rows.append(Row(**{**asdict(done[method]), "method": method, "picked": None}))
+            continue
         row = Row(item.set, item.image, item.spp, method)
         try:
             res = denoise(b, method, params=params.get(method), device="cpu")
@@ -184,9 +187,6 @@ def measure(
             continue
         if method == DEFAULT:
             row.picked = res.method
-        elif method in done:  # the default already ran this method: same output, reuse
-            rows.append(Row(**{**asdict(done[method]), "method": method, "picked": None}))
-            continue
         metrics(row, res.image, res.seconds)
         if method == DEFAULT and row.picked is not None:
             done[row.picked] = row
@@ -430,6 +430,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--levels", default="4,16,64")
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--kpcn-model", default=None, help="kpcn weights (run folder or model.pt)")
+    ap.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="METHOD.KEY=VALUE",
+        help="a method parameter, e.g. kpcn.prefilter=all (repeatable; values as in "
+        "mcdenoise denoise -p)",
+    )
     ap.add_argument("--scenes", default="", help="only images whose id contains one of these")
     ap.add_argument("--no-flip", action="store_true")
     ap.add_argument("--json", type=Path, default=None)
@@ -455,6 +463,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     params: dict[str, dict[str, Any]] = {}
     if args.kpcn_model:
         params["kpcn"] = {"model": args.kpcn_model}
+    for text in args.param:
+        key, sep, val = text.partition("=")
+        method, dot, name = key.partition(".")
+        if not sep or not dot or not method or not name:
+            raise SystemExit(f"--param {text!r}: expected METHOD.KEY=VALUE")
+        params.setdefault(method, {})[name] = val
     scenes = [s for s in args.scenes.split(",") if s]
     with_flip = not args.no_flip and flip_status() is None
     flip_note = "off (--no-flip)" if args.no_flip else (flip_status() or "HDR-FLIP")
@@ -494,7 +508,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         write_text_atomic(args.json, json.dumps(clean({
             "data": str(args.data), "sets": done_sets, "levels": levels, "methods": methods,
-            "kpcn_model": args.kpcn_model or "shipped", "flip": flip_note,
+            "kpcn_model": args.kpcn_model or "shipped", "flip": flip_note, "params": params,
             "commit": commits[0] if commits else git_commit(),
             "baseline_broken": sorted(broken),
             "seconds": time.perf_counter() - t0, "summary": summary, "targets": tgt,
