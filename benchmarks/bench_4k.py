@@ -20,7 +20,9 @@ seconds (the ``seconds`` of the ``--json`` record: no start-up, reading or writi
 resident memory of the process (``ru_maxrss`` from ``os.wait4``) and the ratios to OIDN.
 
     python benchmarks/bench_4k.py [--threads 2] [--layouts full,novar] [--sample FILE]
-        [--timeout 600] [--keep DIR] [--size 3840x2160]
+        [--timeout 600] [--keep DIR] [--size 3840x2160] [--methods M1,M2]
+
+``--methods`` also runs those methods (``--method M``) on each layout, after the default.
 
 A run longer than ``--timeout`` seconds is stopped and reported as such. The inputs are written
 to a temporary folder (``--keep DIR``: there, and reused when present).
@@ -107,11 +109,13 @@ def main() -> None:
     ap.add_argument("--timeout", type=float, default=600.0)
     ap.add_argument("--keep", type=Path, default=None)
     ap.add_argument("--size", default=f"{WIDTH}x{HEIGHT}", help="WxH (a smaller one to try)")
+    ap.add_argument("--methods", default="", help="more methods to run, comma-separated")
     a = ap.parse_args()
     size = tuple(int(v) for v in a.size.lower().split("x"))
     if len(size) != 2 or min(size) < 1:
         raise SystemExit(f"--size {a.size!r}: give WxH, e.g. 3840x2160")
     layouts = [x.strip() for x in a.layouts.split(",") if x.strip()]
+    extra_methods = [x.strip() for x in a.methods.split(",") if x.strip()]
     bad = [x for x in layouts if x not in ("full", "novar")]
     if bad:
         raise SystemExit(f"unknown layout(s) {bad}; use full, novar")
@@ -130,13 +134,14 @@ def main() -> None:
         name = f"{size[0]}x{size[1]}_{layout}.exr"
         src = make_input(a.sample, folder / name, layout, size)  # type: ignore[arg-type]
         res = {}
-        for label, extra in (("default", []), ("oidn", ["--method", "oidn"])):
+        runs = [("default", []), *[(m, ["--method", m]) for m in extra_methods]]
+        for label, extra in [*runs, ("oidn", ["--method", "oidn"])]:
             out = folder / f"out_{layout}_{label}.exr"
             args = ["denoise", str(src), "-o", str(out), "--json", "--threads", str(a.threads)]
             res[label] = run(args + extra, a.timeout)
             out.unlink(missing_ok=True)
         base = res["oidn"]
-        for label in ("default", "oidn"):
+        for label in res:
             r = res[label]
             if r["timeout"]:
                 print(
@@ -152,7 +157,7 @@ def main() -> None:
             print(
                 f"{layout:<7} {r['method']:<15} {r['wall']:>8.1f} {r['seconds']:>9.1f} "
                 f"{r['peak_gb']:>8.2f} {ratio_w:>10.2f} {ratio_s:>7.2f} "
-                f"{('yes' if meets else 'no') if label == 'default' else '':>6}"
+                f"{('yes' if meets else 'no') if label != 'oidn' else '':>6}"
             )
     print(f"meets: peak <= {LIMIT_GB:g} GB and whole-process wall <= {LIMIT_RATIO:g}x OIDN's")
     print(f"load average {os.getloadavg()[0]:.2f} at the end")

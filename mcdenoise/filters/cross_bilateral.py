@@ -162,7 +162,9 @@ def cross_bilateral(
         f_list.append(f)
         scale_list.extend([s] * f.shape[1])
     fstack = torch.cat(f_list, dim=1) if f_list else None  # (B, ΣC_k, H, W)
-    fscale: Tensor | None = None
+    # Per-pixel scales: one (B, 1, H, W) plane per feature, applied to its channels by
+    # broadcasting (the same products as one plane per channel, in 4 planes instead of 10).
+    fscale: list[tuple[int, int, Tensor | float]] = []
     if fstack is not None:
         if all(not isinstance(s, Tensor) for s in scale_list):
             # constant scales: fold them into the features once, (f_i - f_j)² · s = (√s f_i - √s f_j)²
@@ -171,16 +173,12 @@ def cross_bilateral(
             )
             fstack = fstack * root.view(1, -1, 1, 1)
         else:
-            b, _, h, w = color.shape
-            fscale = torch.cat(
-                [
-                    s.expand(b, 1, h, w)
-                    if isinstance(s, Tensor)
-                    else color.new_full((b, 1, h, w), s)
-                    for s in scale_list
-                ],
-                dim=1,
-            )  # (B, ΣC_k, H, W)
+            c0 = 0
+            for f in f_list:
+                s = scale_list[c0]
+                fscale.append((c0, c0 + f.shape[1], s if isinstance(s, Tensor) else float(s)))
+                c0 += f.shape[1]
+    del f_list, scale_list
 
     spatial = inv_two_sq(alpha, dtype)  # 1/2α²   float or (B,1,·,·)
     col = inv_two_sq(beta, dtype)  # 1/2β²
@@ -197,7 +195,7 @@ def cross_bilateral(
     # In-place arithmetic on per-offset temporaries when nothing needs a gradient.
     inplace = not torch.is_grad_enabled() or not any(
         isinstance(t, Tensor) and t.requires_grad
-        for t in (color, guide_c, var, alpha, beta, fstack, fscale)
+        for t in (color, guide_c, var, alpha, beta, fstack, *[s for _, _, s in fscale])
     )
 
     def weight_fn(win: Window) -> Tensor | None:
@@ -218,8 +216,15 @@ def cross_bilateral(
         if fstack is not None:
             df = win.neighbour(fstack) - win.centre(fstack)  # (B,ΣC,h,w)
             df = df.square_() if inplace else df.square()
-            if fscale is not None:
-                df = df.mul_(win.centre(fscale)) if inplace else df * win.centre(fscale)
+            if fscale:
+                parts = []
+                for a, z, sc in fscale:
+                    sc = win.param(sc)
+                    if inplace:
+                        df[:, a:z].mul_(sc)
+                    else:
+                        parts.append(df[:, a:z] * sc)
+                df = df if inplace else torch.cat(parts, dim=1)
             fs = df.sum(dim=1, keepdim=True)
             e = e.add_(fs) if inplace else e + fs
         if r2 > 0:

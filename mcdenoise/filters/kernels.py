@@ -50,7 +50,7 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters._common import check_image, check_kernel_size
-from mcdenoise.filters.parallel import parallel_map, workers
+from mcdenoise.filters.parallel import parallel_map
 
 #: Default output tile edge of :func:`apply_kernels` (measured fastest on 2 cores, see
 #: ``benchmarks/bench_filters.py``: its per-offset work is two streaming ops).
@@ -244,14 +244,11 @@ def _run_tiles(
     fn: Callable[[int, int, int, int], None], h: int, w: int, tile: tuple[int, int], like: Tensor
 ) -> None:
     """Call ``fn(ty0, ty1, tx0, tx1)`` for every output tile, the tiles shared by the worker
-    threads of :func:`~mcdenoise.filters.parallel.parallel_map` (on the CPU, without autograd;
-    each tile computes what it computes alone, so the result does not depend on the thread
-    count). With fewer tiles than workers the tiles are cut into that many row bands."""
-    th, tw = tile
-    n = workers()
-    if n > 1 and -(-h // th) * -(-w // tw) < n:
-        th = max(1, -(-h // n))
-    parallel_map(lambda t: fn(*t), _tiles(h, w, th, tw), like)
+    threads of :func:`~mcdenoise.filters.parallel.parallel_map` (on the CPU, without autograd).
+    The tiles are the same whatever the thread count (NLM's patch sums start at a tile's edge,
+    so its rounding depends on the tiling) and each computes what it computes alone: the
+    result does not depend on the number of threads, bit for bit."""
+    parallel_map(lambda t: fn(*t), _tiles(h, w, *tile), like)
 
 
 def apply_kernels(

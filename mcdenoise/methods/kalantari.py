@@ -50,6 +50,7 @@ def denoise_kalantari(
     """
     with single_threaded_ops():  # parallel over tiles and row bands instead (filters/parallel.py)
         item = prepare_for_model(model.card, buffers, features=False)
+        del item["color"]  # not filtered (it keeps the sanitised copy of the colour alive)
         feats = item_features(item, buffers.spp, regional=model.card.regional)
         return model.denoise_item(item, chunk_rows=chunk_rows, features=feats)
 

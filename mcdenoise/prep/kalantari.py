@@ -192,6 +192,7 @@ def guide_features(
     if (c0, c1) != (y0, y1):
         chans = [x[..., y0 - c0 : y1 - c0, :] for x in chans]
     feats = torch.cat(chans, dim=1)
+    del chans
     expected = len(feature_names(names, [g for g in names if g in guide_vars], regional))
     if feats.shape[1] != expected:  # a programming error, not an input error
         raise AssertionError(f"{feats.shape[1]} feature channels for {expected} names")
@@ -244,7 +245,8 @@ def prepare_item(
 
     Keys: ``color`` (sanitised noisy colour), ``irr``/``irr_var`` (what the filter averages and
     its variance), ``factor`` (remodulation, ones without albedo), ``feat.<g>``/``fvar.<g>``
-    (guides as :func:`~mcdenoise.prep.inputs.prepare_inputs` normalises them), ``features``
+    (guides as :func:`~mcdenoise.prep.inputs.prepare_inputs` normalises them; a variance as
+    its channel mean, ``(1, H, W)``), ``features``
     (raw features; not with ``features=False``: :func:`item_features` computes them a band
     of rows at a time, the same values without an ``F × H × W`` tensor), and ``reference`` when
     given.
@@ -270,8 +272,8 @@ def prepare_item(
         out["features"] = compute_features(inp, irr, var, buffers.spp, regional=regional)[0][0]
     for g in guides:
         out[f"feat.{g}"] = inp.features[g][0]
-        if g in inp.feature_vars:
-            out[f"fvar.{g}"] = inp.feature_vars[g][0]
+        if g in inp.feature_vars:  # the channel mean: all that the features and filters use
+            out[f"fvar.{g}"] = inp.feature_vars[g].mean(dim=1, keepdim=True)[0]
     if reference is not None:
         out["reference"] = reference
     return out

@@ -49,7 +49,7 @@ def _filters(tile):
     return xbf, nlm
 
 
-@pytest.mark.parametrize("tile", [None, 32, (16, 50)])
+@pytest.mark.parametrize("tile", [32, (16, 50)])
 def test_threaded_tiles_equal_one_thread(tile, two_threads) -> None:
     torch.set_num_threads(1)
     one = _filters(tile)
