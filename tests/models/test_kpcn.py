@@ -198,7 +198,9 @@ def test_training_forward_routes_each_crop_to_its_source(cornell, model) -> None
             else:
                 # a basic/colour crop is exactly what inference sees for that source: e.g. a
                 # colour-only crop is not demodulated by the albedo the batch holds
-                want = denoise_kpcn(model, cornell.crop(8 * i, 10 * i, 16, 16), source=name)
+                # (training crops are neither prefiltered nor exposure-scaled here)
+                crop = cornell.crop(8 * i, 10 * i, 16, 16)
+                want = denoise_kpcn(model, crop, source=name, prefilter="off", exposure="off")
             torch.testing.assert_close(out[i], want, atol=1e-6, rtol=1e-6, msg=name)
         # the same crop seen through different sources gives different results
         same = _batch(cornell, [0])
