@@ -85,9 +85,9 @@ class _MetricsOption(click.Option):
 def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, progress, force):
     """Compare denoised OUTPUTS (files or folders) with a reference; write a report.
 
-    An output made by `mcdenoise denoise` records its source; when the source shows another
-    scene than the reference (by the mcdenoise:scene header attributes, else by the file
-    names: cornell_spp4.exr goes with ref/cornell.exr), eval refuses it unless --force.
+    An output made by `mcdenoise denoise` records its source; when the source's
+    mcdenoise:scene header names another scene than the reference's, eval refuses it unless
+    --force. Files without scene headers (your own noisy.exr, ref.exr) are evaluated as given.
 
     \b
     With --experiment SPEC (no OUTPUTS, no --ref): run the experiment and write
