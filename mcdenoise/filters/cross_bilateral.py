@@ -35,6 +35,7 @@ are clamped at ``tiny ** 0.25`` of the dtype, so σ → 0 gives the identity, ne
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import torch
@@ -198,39 +199,58 @@ def cross_bilateral(
         for t in (color, guide_c, var, alpha, beta, fstack, *[s for _, _, s in fscale])
     )
 
+    neg_col = -col  # exact: x · (-c) = -(x · c)
+    tiny_w = math.exp(-cut)  # what neg_exp subtracts
+
     def weight_fn(win: Window) -> Tensor | None:
         r2 = float(win.dy * win.dy + win.dx * win.dx)
         if r2 > 0 and r2 / (2 * amax * amax) > cut:
             return None  # the spatial term alone puts every weight below exp(-cut): all 0
+        if inplace:
+            return _weight_inplace(win, r2)
         d = win.neighbour(guide_c) - win.centre(guide_c)
-        e = (d.square_() if inplace else d.square()).sum(dim=1, keepdim=True)  # (B,1,h,w)
+        e = d.square().sum(dim=1, keepdim=True)  # (B,1,h,w)
         if den_i is not None and vmean is not None:
             vj = win.neighbour(vmean)
             if pair_min:
                 vc = win.centre(vmean)
                 vj = torch.minimum(vc if var_cap == 1 else vc * var_cap, vj)
-            den = win.centre(den_i) + vj
-            e = e.div_(den) if inplace else e / den
-        c_i = win.param(col)
-        e = e.mul_(c_i) if inplace else e * c_i
+            e = e / (win.centre(den_i) + vj)
+        e = e * win.param(col)
+        if fstack is not None:
+            df = (win.neighbour(fstack) - win.centre(fstack)).square()  # (B,ΣC,h,w)
+            if fscale:
+                df = torch.cat([df[:, a:z] * win.param(sc) for a, z, sc in fscale], dim=1)
+            e = e + df.sum(dim=1, keepdim=True)
+        if r2 > 0:
+            e = e + win.param(spatial) * r2
+        return neg_exp(e)
+
+    def _weight_inplace(win: Window, r2: float) -> Tensor:
+        """The same weights without autograd: in place, and on the negated exponent -e, which
+        is exact (IEEE rounding is symmetric) and saves neg_exp's negation and its copy."""
+        d = win.neighbour(guide_c) - win.centre(guide_c)
+        e = d.square_().sum(dim=1, keepdim=True)  # (B,1,h,w)
+        if den_i is not None and vmean is not None:
+            vj = win.neighbour(vmean)
+            if pair_min:
+                vc = win.centre(vmean)
+                vj = torch.minimum(vc if var_cap == 1 else vc * var_cap, vj)
+                den = vj.add_(win.centre(den_i))  # vj is a new tensor; a + b = b + a exactly
+            else:
+                den = win.centre(den_i) + vj
+            e.div_(den)
+        e.mul_(win.param(neg_col))  # -e from here on
         if fstack is not None:
             df = win.neighbour(fstack) - win.centre(fstack)  # (B,ΣC,h,w)
-            df = df.square_() if inplace else df.square()
-            if fscale:
-                parts = []
-                for a, z, sc in fscale:
-                    sc = win.param(sc)
-                    if inplace:
-                        df[:, a:z].mul_(sc)
-                    else:
-                        parts.append(df[:, a:z] * sc)
-                df = df if inplace else torch.cat(parts, dim=1)
-            fs = df.sum(dim=1, keepdim=True)
-            e = e.add_(fs) if inplace else e + fs
+            df.square_()
+            for a, z, sc in fscale:
+                df[:, a:z].mul_(win.param(sc))
+            e.sub_(df.sum(dim=1, keepdim=True))
         if r2 > 0:
-            sp = win.param(spatial) * r2
-            e = e.add_(sp) if inplace else e + sp
-        return neg_exp(e)
+            e.sub_(win.param(spatial) * r2)
+        # neg_exp(e) = (exp(-min(e, cut)) - exp(-cut))⁺, with -min(e, cut) = max(-e, -cut)
+        return e.clamp_(min=-cut).exp_().sub_(tiny_w).clamp_min_(0.0)
 
     return accumulate_weighted(color, weight_fn, k, tile=tile)
 
