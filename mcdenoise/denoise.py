@@ -382,9 +382,10 @@ def denoise_file(
     """Read ``input_path``, denoise it, write ``output_path`` atomically (colour only).
 
     The output keeps the input's data and display windows and records, as header attributes,
-    the method, its parameters, the source file, the seconds the method took, the device,
-    the sample count of the input and the input's scene attributes
-    (:data:`SCENE_ATTRIBUTES`). ``buffers``: the input already read with ``read`` (it is
+    the method, its parameters, the source file (and its part, and its profile where that
+    names an image inside the file, e.g. ``mcdenoise:source_profile = "cycles:Layer2"``), the
+    seconds the method took, the device, the sample count of the input and the input's scene
+    attributes (:data:`SCENE_ATTRIBUTES`). ``buffers``: the input already read with ``read`` (it is
     then not read again).
     """
     from mcdenoise.io import load_buffers, save_buffers
@@ -411,6 +412,10 @@ def denoise_file(
             attrs[key] = buffers.attributes[key]
     if read.part is not None:
         attrs["mcdenoise:source_part"] = str(read.part)
+    if buffers.profile and ":" in buffers.profile:
+        # the profile names an image inside the file (a Cycles view layer: "cycles:Layer2"):
+        # `mcdenoise eval` reads the source, and the reference, with it
+        attrs["mcdenoise:source_profile"] = buffers.profile
     if buffers.spp is not None:
         attrs["mcdenoise:spp"] = int(buffers.spp)
     report = save_buffers(

@@ -46,6 +46,10 @@ ATTR_METHOD = "mcdenoise:method"
 ATTR_PARAMS = "mcdenoise:params"
 ATTR_SOURCE = "mcdenoise:source"
 ATTR_SOURCE_PART = "mcdenoise:source_part"
+#: The profile ``mcdenoise denoise`` read its source with, where it names an image inside the
+#: file (``"cycles:Layer2"``: a Blender view layer); the source and the reference are read
+#: with it.
+ATTR_SOURCE_PROFILE = "mcdenoise:source_profile"
 ATTR_SECONDS = "mcdenoise:seconds"
 ATTR_DEVICE = "mcdenoise:device"
 ATTR_SPP = "mcdenoise:spp"
@@ -115,10 +119,18 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def _key(p: Path, part: str | None = None) -> str:
+def _key(p: Path, part: str | None = None, profile: str | None = None) -> str:
     """Identity of an image: the resolved file, plus ``#part`` for one part of a multi-part
-    file (a data set written by ``mcdenoise render`` keeps every spp level in one file)."""
-    return str(p.resolve()) + (f"#{part}" if part else "")
+    file (a data set written by ``mcdenoise render`` keeps every spp level in one file), plus
+    `` [profile]`` for an image a profile picks inside it (a Cycles view layer)."""
+    return str(p.resolve()) + (f"#{part}" if part else "") + (f" [{profile}]" if profile else "")
+
+
+def _cycles_layer(profile: str | None) -> str | None:
+    """The view layer of a recorded ``cycles:<Layer>`` profile, else ``None``."""
+    if profile and profile.startswith("cycles:") and len(profile) > len("cycles:"):
+        return profile[len("cycles:") :]
+    return None
 
 
 # --- metadata -----------------------------------------------------------------------------
@@ -130,9 +142,11 @@ class _Meta:
 
     path: Path
     part: str | None = None  # the part of ``path`` described (None: the default part)
+    profile: str | None = None  # the profile ``path`` is read with (None: auto-detected)
     method: str | None = None
     source: str | None = None
     source_part: str | None = None
+    source_profile: str | None = None
     seconds: float | None = None
     device: str | None = None
     params: str | None = None
@@ -157,7 +171,11 @@ def _as_float(v: Any) -> float | None:
 
 
 def _meta(
-    path: Path, attributes: Mapping[str, Any], spp: int | None, part: str | None = None
+    path: Path,
+    attributes: Mapping[str, Any],
+    spp: int | None,
+    part: str | None = None,
+    profile: str | None = None,
 ) -> _Meta:
     attrs = dict(attributes)
     params = attrs.get(ATTR_PARAMS)
@@ -166,6 +184,7 @@ def _meta(
     method = attrs.get(ATTR_METHOD)
     source = attrs.get(ATTR_SOURCE)
     source_part = attrs.get(ATTR_SOURCE_PART)
+    source_profile = attrs.get(ATTR_SOURCE_PROFILE)
     device = attrs.get(ATTR_DEVICE)
     spp_value = _as_int(attrs.get(ATTR_SPP)) or _as_int(spp)
     if spp_value is None:
@@ -174,9 +193,11 @@ def _meta(
     return _Meta(
         path=path,
         part=part,
+        profile=profile,
         method=str(method) if method not in (None, "") else None,
         source=str(source) if source not in (None, "") else None,
         source_part=str(source_part) if source_part not in (None, "") else None,
+        source_profile=str(source_profile) if source_profile not in (None, "") else None,
         seconds=_as_float(attrs.get(ATTR_SECONDS)),
         device=str(device) if device not in (None, "") else None,
         params=params,
@@ -185,23 +206,39 @@ def _meta(
     )
 
 
-def _probe(path: Path, part: str | None = None) -> _Meta:
+def _probe(path: Path, part: str | None = None, profile: str | None = None) -> _Meta:
     """Header metadata of one EXR (the first part, or the part named ``part``), without
-    reading pixels."""
+    reading pixels; ``profile``: the profile it is to be read with (kept in the metadata)."""
     from mcdenoise.io.exr import probe_exr, select_part
+    from mcdenoise.io.profiles.cycles import BLENDER_ATTR
 
     parts = probe_exr(path)
-    header = parts[0] if part is None else select_part(parts, part, str(path))
-    return _meta(path, header.attributes, None, part)
+    # a Blender file's `part` may name a view layer; its attributes are in part 0 only
+    if part is None or BLENDER_ATTR in parts[0].attributes:
+        header = parts[0]
+    else:
+        header = select_part(parts, part, str(path))
+    return _meta(path, header.attributes, None, part, profile)
 
 
-def _load(path: Path, part: str | None = None) -> tuple[np.ndarray, _Meta]:
-    """Colour ``(3, H, W)`` float32 linear HDR RGB and metadata of one EXR (or one part)."""
+def _load(
+    path: Path, part: str | None = None, profile: str | None = None
+) -> tuple[np.ndarray, _Meta]:
+    """Colour ``(3, H, W)`` float32 linear HDR RGB and metadata of one EXR (or one part), read
+    with ``profile`` (default: auto-detected)."""
     from mcdenoise.io import load_buffers
 
-    buf = load_buffers(path, part=part)
+    buf = load_buffers(path, part=part, profile=profile or "auto")
     color = buf["color"].detach().cpu().numpy()
-    return color, _meta(path, buf.attributes, buf.spp, part)
+    return color, _meta(path, buf.attributes, buf.spp, part, profile)
+
+
+def _reference_layers(path: Path) -> list[str]:
+    """The Blender view layers of a reference file (none for any other layout)."""
+    from mcdenoise.io.exr import probe_exr
+    from mcdenoise.io.profiles.cycles import cycles_layers
+
+    return list(cycles_layers([c for p in probe_exr(path) for c in p.channel_names]))
 
 
 # --- does an output show the reference's scene? --------------------------------------------
@@ -413,13 +450,20 @@ class _Planned:
     """An output file, its scene, and the noisy input it was made from."""
 
     meta: _Meta
-    scene: str
+    scene: str  # the reference's scene, `:<Layer>` added for a view layer of it
     input: Path | None = None
     input_part: str | None = None  # the part of ``input`` the output was made from
+    input_profile: str | None = None  # the profile ``input`` was read with (a view layer)
     notes: list[str] = field(default_factory=list)
 
     @property
     def input_key(self) -> str | None:
+        if self.input is None:
+            return None
+        return _key(self.input, self.input_part, self.input_profile)
+
+    @property
+    def input_file_key(self) -> str | None:
         return None if self.input is None else _key(self.input, self.input_part)
 
 
@@ -501,15 +545,32 @@ def evaluate(
     # 2. find each output's noisy input; check that it shows the reference's scene
     planned: dict[str, _Planned] = {}
     ref_ids: dict[Path, dict[str, str]] = {}
+    ref_layers: dict[Path, list[str]] = {}
+    scene_refs: dict[str, tuple[Path, str | None]] = {s: (p, None) for s, p in refs.items()}
     for key, meta in given.items():
-        plan = _Planned(meta=meta, scene=scene_of(meta.path, "output"))
+        base = scene_of(meta.path, "output")
+        plan = _Planned(meta=meta, scene=base, input_profile=meta.source_profile)
+        layer = _cycles_layer(meta.source_profile)
+        if layer is not None:  # made from one view layer: the reference's layer of that name
+            ref = refs[base]
+            if ref not in ref_layers:
+                ref_layers[ref] = _reference_layers(ref)
+            if ref_layers[ref] and layer not in ref_layers[ref]:
+                raise InputError(
+                    f"reference {ref} has no Cycles view layer {layer!r} (output {meta.path} "
+                    f"was made from that layer); its layers: "
+                    f"{', '.join(map(repr, ref_layers[ref]))}"
+                )
+            if ref_layers[ref]:  # a reference without view layers is one image: as given
+                plan.scene = f"{base}:{layer}"
+                scene_refs[plan.scene] = (ref, layer)
         if meta.source is not None:
             src = _source_path(meta)  # a relative source: relative to the output
             if src is not None:
                 plan.input, plan.input_part = src, meta.source_part
             else:
                 plan.notes.append(f"noisy input {meta.source} ({ATTR_SOURCE}) not found")
-            problem = _scene_mismatch(meta, refs[plan.scene], ref_ids)
+            problem = _scene_mismatch(meta, refs[base], ref_ids)
             if problem is not None:
                 if not force:
                     raise InputError(f"{problem}; give the reference of that scene, or --force")
@@ -523,23 +584,32 @@ def evaluate(
         planned[key] = plan
 
     # 3. a given file without a method attribute that is another output's input is a noisy row
+    # (read as that output's source was: with its recorded profile, a view layer)
     sources = {p.input_key for p in planned.values() if p.input is not None}
+    source_files = {p.input_file_key for p in planned.values() if p.input is not None}
     for key in list(planned):
-        if planned[key].meta.method is None and (key in sources or key in noisy_given):
-            noisy_given.setdefault(key, planned.pop(key).meta.path)
-    # (an input that is itself an evaluated output, e.g. a denoiser chain, gets no noisy row)
-    noisy_files: dict[str, tuple[Path, str | None]] = {
-        k: (p, None) for k, p in noisy_given.items() if k not in planned
+        if planned[key].meta.method is None and (key in source_files or key in noisy_given):
+            path = planned.pop(key).meta.path
+            if key in sources or key in noisy_given:
+                noisy_given.setdefault(key, path)
+    # (an input that is itself an evaluated output, e.g. a denoiser chain, gets no noisy row;
+    # a given input that every output read with a profile gets only those rows)
+    noisy_files: dict[str, tuple[Path, str | None, str | None]] = {
+        k: (p, None, None)
+        for k, p in noisy_given.items()
+        if k not in planned and (k in sources or k not in source_files)
     }
     for plan in planned.values():
         if plan.input is not None and plan.input_key not in planned:
-            noisy_files.setdefault(plan.input_key, (plan.input, plan.input_part))
+            noisy_files.setdefault(
+                plan.input_key, (plan.input, plan.input_part, plan.input_profile)
+            )
 
     # 4. noisy inputs: metadata and scene
     noisy_meta: dict[str, _Meta] = {}
     noisy_scene: dict[str, str] = {}
-    for key, (path, part) in noisy_files.items():
-        noisy_meta[key] = given[key] if key in given else _probe(path, part)
+    for key, (path, part, profile) in noisy_files.items():
+        noisy_meta[key] = given[key] if key in given else _probe(path, part, profile)
         users = [p.scene for p in planned.values() if p.input_key == key]
         noisy_scene[key] = users[0] if users else scene_of(path, "noisy input")
 
@@ -569,8 +639,8 @@ def evaluate(
                 if _key(plan.meta.path) not in placed:
                     upstream = given.get(plan.input_key) if plan.input_key else None
                     jobs.append(_output_job(plan, upstream))
-            ref_path = refs[scene]
-            ref_color = _load(ref_path)[0]
+            ref_path, layer = scene_refs[scene]
+            ref_color = _load(ref_path, None, f"cycles:{layer}" if layer else None)[0]
             _evaluate_scene(
                 result,
                 scene,
@@ -618,8 +688,13 @@ def _references(reference: PathLike) -> dict[str, Path]:
 
 
 def _label(meta: _Meta) -> str:
-    """How an image is named in records: its file, plus ``#part`` for one part of a file."""
-    return str(meta.path) + (f"#{meta.part}" if meta.part else "")
+    """How an image is named in records: its file, plus ``#part`` for one part of a file,
+    plus `` [profile]`` for an image a profile picks in it (``noisy.exr [cycles:Layer2]``)."""
+    return (
+        str(meta.path)
+        + (f"#{meta.part}" if meta.part else "")
+        + (f" [{meta.profile}]" if meta.profile else "")
+    )
 
 
 def _file_job(meta: _Meta, scene: str, role: str, method: str, upstream: _Meta | None) -> _Job:
@@ -634,10 +709,10 @@ def _file_job(meta: _Meta, scene: str, role: str, method: str, upstream: _Meta |
         device=meta.device if role == ROLE_OUTPUT else None,
         params=meta.params if role == ROLE_OUTPUT else None,
     )
-    path, part = meta.path, meta.part
+    path, part, profile = meta.path, meta.part, meta.profile
 
     def load() -> np.ndarray:
-        color, loaded = _load(path, part)
+        color, loaded = _load(path, part, profile)
         if rec.spp is None:
             rec.spp = loaded.spp
         return color
