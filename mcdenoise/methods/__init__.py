@@ -3,15 +3,15 @@
 =================  ==========================================================  ========
 name               what                                                        priority
 =================  ==========================================================  ========
+kpcn               kernel-predicting U-Net (Bako 2017) with source-aware           35
+                   encoders and 3-scale kernels (Vogels 2018); ``model`` = a run
+                   folder or model file, default the shipped weights
+                   (:mod:`~mcdenoise.methods.kpcn`; -1 without shipped weights)
 kalantari-xbf      two-pass cross-bilateral filter whose per-pixel bandwidths      30
                    a small MLP predicts from local features (Kalantari 2015);
                    ``model`` = a run folder or model file, default the shipped
                    weights (:mod:`~mcdenoise.methods.kalantari`)
 kalantari-nlm      the same learning for NLM (per-pixel k and feature k_f)         25
-kpcn               kernel-predicting U-Net (Bako 2017) with source-aware           22
-                   encoders and 3-scale kernels (Vogels 2018); ``model`` = a run
-                   folder or model file, default the shipped weights
-                   (:mod:`~mcdenoise.methods.kpcn`; -1 without shipped weights)
 nlm                variance-normalised non-local means with feature weights    20
                    (Rousselle 2012/2013), albedo-demodulated
                    (:mod:`~mcdenoise.methods.nlm`)
@@ -30,15 +30,20 @@ module happened to be imported first.
 
 The default method (no ``--method``) is the first available one, by priority, that accepts
 the input (:meth:`~mcdenoise.method.Method.accepts`: the buffers it requires, then its own
-``check_input``; :func:`mcdenoise.registry.choose_method`). The learned filters rank first,
-kalantari-xbf above kalantari-nlm; they accept an input only with every guide *and guide
-variance* their model was trained with (the shipped models: albedo, normal, depth, position
-and their variances; kalantari-xbf serves inputs without albedo with its shipped no-albedo
-variant). They do not estimate missing variances (a file without them has no per-sample
-information, and an estimate from the image would be outside their training data): inputs
-without them -- plain Mitsuba ``aov`` files, Cycles, pbrt -- are passed over with the reason,
-which ``mcdenoise denoise --verbose`` prints, and go to kpcn when they have albedo and normal,
-else to nlm, which runs on colour alone. OIDN is deliberately never the default: mcdenoise's
+``check_input``; :func:`mcdenoise.registry.choose_method`). kpcn ranks first whenever its
+shipped weights are installed: it needs colour, albedo and normal and uses whatever else the
+input has (the ``full`` source with every feature variance, the ``basic`` one without). Out
+of the training distribution it is the best of the project's methods at 4 and 16 spp, and the only
+one within the 4K bounds (issue 21; ``docs/results/ood.md``, ``docs/results/kalantari.md``
+"4K"); kalantari-xbf, next, is better on the four sample renders at 16 spp and the user's
+choice when time does not matter. The Kalantari models accept an input only with every
+guide *and guide variance* their model was trained with (the shipped models: albedo, normal,
+depth, position and their variances; kalantari-xbf serves inputs without albedo with its
+shipped no-albedo variant); they do not estimate missing variances (a file without them has
+no per-sample information, and an estimate from the image would be outside their training
+data). So an input without albedo goes to kalantari-xbf when it has the other guides and
+their variances, else to nlm, which runs on colour alone; ``mcdenoise denoise --verbose``
+prints every method passed over and why. OIDN is deliberately never the default: mcdenoise's
 own methods are what it reports on, OIDN is the baseline they are compared with. The
 measurements behind this order are in ``docs/results/methods-notes.md``.
 """

@@ -55,8 +55,8 @@ def denoise_kpcn(
         source: force an input source (default: the first the model knows whose buffers
             are present, :func:`~mcdenoise.prep.kpcn.source_for`).
         prefilter: which noisy guide features are prefiltered first, a key of
-            :data:`~mcdenoise.prep.kpcn.PREFILTER_MODES` (default ``auto``: those without a
-            variance buffer).
+            :data:`~mcdenoise.prep.kpcn.PREFILTER_MODES` (default ``all``: every guide
+            feature, steered by its variance buffer where it has one).
         exposure: ``auto``: an image darker or brighter than the training renders is scaled
             into :data:`~mcdenoise.prep.kpcn.EXPOSURE_RANGE` and the result back
             (:func:`~mcdenoise.prep.kpcn.exposure_scale`); ``off``: as it is.
@@ -142,7 +142,7 @@ METHOD = Method(
     },
     run=_run,
     check_input=_check,
-    priority=22 if shipped_model_path("kpcn").is_file() else -1,
+    priority=35 if shipped_model_path("kpcn").is_file() else -1,
 )
 
 __all__ = ["METHOD", "denoise_kpcn"]

@@ -27,17 +27,21 @@ pytestmark = pytest.mark.skipif(
 ONE_THREAD = True
 
 
-def test_prefilter_defaults_to_auto_and_changes_only_inputs_without_variances() -> None:
-    assert METHOD.defaults["prefilter"] == "auto"
+def test_prefilter_defaults_to_all_and_auto_changes_only_inputs_without_variances() -> None:
+    assert METHOD.defaults["prefilter"] == "all"
     b = load_buffers(SAMPLES / "cornell_spp4.exr").crop(0, 0, 64, 64)
     basic = b.subset(["color", "albedo", "normal"])
-    auto = denoise(basic, "kpcn").image
+    auto = denoise(basic, "kpcn", params={"prefilter": "auto"}).image
     off = denoise(basic, "kpcn", params={"prefilter": "off"}).image
     assert not torch.equal(auto, off)
-    # a render with feature variances (full source): auto leaves its features as they are
-    full_auto = denoise(b, "kpcn").image
+    # without variances there is nothing for `auto` to leave out: `all` is the same
+    assert torch.equal(denoise(basic, "kpcn").image, auto)
+    # a render with feature variances (full source): auto leaves its features as they are,
+    # all (the default) prefilters them too
+    full_auto = denoise(b, "kpcn", params={"prefilter": "auto"}).image
     full_off = denoise(b, "kpcn", params={"prefilter": "off"}).image
     assert torch.equal(full_auto, full_off)
+    assert not torch.equal(denoise(b, "kpcn").image, full_off)
 
 
 def test_a_bad_prefilter_or_exposure_value_is_one_clear_error() -> None:
