@@ -483,7 +483,10 @@ def evaluate(
     reference does (see :func:`same_scene`) is refused, naming both; with ``force`` it is
     evaluated and ``warn`` (default: ``warnings.warn``) gets the message, which is also noted
     in the record. Where either side records no scene (no recorded source, files without
-    ``mcdenoise:scene`` headers) the pairing the caller gave stands.
+    ``mcdenoise:scene`` headers) the pairing the caller gave stands. An output made from one
+    view layer of a Blender Cycles file (``mcdenoise:source_profile = "cycles:<Layer>"``) is
+    compared with that layer of a multilayer reference (scene ``<ref>:<Layer>``), and its
+    noisy row is that layer of its source; a reference without view layers is taken as given.
 
     Args:
         reference: a reference EXR, or a folder of reference EXRs (matched to each output by
@@ -503,8 +506,9 @@ def evaluate(
 
     Raises:
         InputError: a path does not exist, an output matches no reference (the message names
-            it), an output is a reference, an output's source records another scene
-            (without ``force``), or an image differs in size from its reference (the message
+            it), an output is a reference, a multilayer reference lacks an output's view
+            layer (the message names it and the reference's layers), an output's source
+            records another scene (without ``force``), or an image differs in size from its reference (the message
             names both files and sizes).
         mcdenoise.errors.ExrError: an EXR cannot be read.
     """
