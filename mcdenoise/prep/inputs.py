@@ -249,6 +249,7 @@ def prepare_inputs(
     features: Sequence[str] = GUIDE_FEATURES,
     prefilter: bool = True,
     estimate_missing: bool = False,
+    prefilter_settings: Mapping[str, Any] | None = None,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
 ) -> FilterInputs:
@@ -261,6 +262,9 @@ def prepare_inputs(
         prefilter: prefilter features that have a variance buffer (see the module docstring).
         estimate_missing: prefilter features that have none, with a variance estimated from
             the feature (:func:`estimate_feature_variance`; not put in ``feature_vars``).
+        prefilter_settings: NLM settings of the prefilter of features that have a variance
+            buffer (default :data:`PREFILTER`, the classical filters' choice; ``kpcn`` uses
+            :data:`PREFILTER_ESTIMATED`).
         dtype, device: of the returned tensors.
 
     Raises:
@@ -298,7 +302,7 @@ def prepare_inputs(
         if name + "_var" in clean:
             fvars[name] = t(name + "_var") * scale**2
             if prefilter:
-                f = prefilter_feature(f, fvars[name])
+                f = prefilter_feature(f, fvars[name], prefilter_settings or PREFILTER)
         elif estimate_missing:
             v = torch.minimum(estimate_feature_variance(f), feature_noise_cap(color, color_var, f))
             f = prefilter_feature(f, v, PREFILTER_ESTIMATED)

@@ -13,14 +13,16 @@ Prefiltering matters where the features are noisy: depth of field, motion blur, 
 than a pixel. The network demodulates the colour by the albedo and multiplies the filtered
 irradiance back by it, so every bit of noise in the albedo comes back in the result; a
 source without feature variances (``basic``) cannot even tell the network that the albedo is
-noisy. ``all`` (the default) prefilters every guide feature: one with a variance buffer
-steered by it, one without by a variance estimated from its neighbourhood
+noisy. ``all`` (the default) prefilters every guide feature with variance-normalised NLM
+(3×3 patches in a 7×7 window, :data:`~mcdenoise.prep.inputs.PREFILTER_ESTIMATED`; the
+classical filters' 7×7 patches in an 11×11 window were slower and no better here): one with a
+variance buffer steered by it, one without by a variance estimated from its neighbourhood
 (:func:`~mcdenoise.prep.inputs.estimate_feature_variance`). ``auto`` leaves the features
 that have a variance as they are (the ``full`` source also hands that variance to the
 network); ``off`` prefilters nothing. ``all`` became the default after measuring both on the
 ``full`` source (``docs/results/kpcn.md``, "Out of distribution"): held-out relMSE at 4/16/64
-spp 0.00813/0.00323/0.00159 with ``auto``, 0.00733/0.00303/0.00156 with ``all``; on the
-out-of-distribution renders ``dof_extreme`` at 4 spp 14.4× OIDN's relMSE with ``auto``, 2.8×
+spp 0.00813/0.00323/0.00159 with ``auto``, 0.00703/0.00299/0.00154 with ``all``; on the
+out-of-distribution renders ``dof_extreme`` at 4 spp 14.4× OIDN's relMSE with ``auto``, 3.0×
 with ``all``.
 
 Exposure: the network sees ``log1p`` of the demodulated colour, so its behaviour depends on
@@ -43,7 +45,7 @@ from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.models.encoders import FEATURE_VARS, SOURCES
-from mcdenoise.prep.inputs import prepare_inputs, quantile_subsampled
+from mcdenoise.prep.inputs import PREFILTER_ESTIMATED, prepare_inputs, quantile_subsampled
 
 #: Tensors of a prepared image and their channel counts.
 PREPARED = {
@@ -161,6 +163,7 @@ def prepare_tensors(
         features=guides,
         prefilter=prefilter == "all",
         estimate_missing=prefilter != "off",
+        prefilter_settings=PREFILTER_ESTIMATED,
     )
     missing = [g for g in guides if g not in inp.features]
     if missing:
