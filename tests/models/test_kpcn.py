@@ -65,8 +65,11 @@ def _copy(b: FeatureBuffers) -> FeatureBuffers:
 
 
 def _batch(b: FeatureBuffers, sources: list[int]) -> dict[str, torch.Tensor]:
-    """Prepared full-source tensors of ``len(sources)`` 16x16 crops, as a training batch."""
-    crops = [prepare_tensors(b.crop(8 * i, 10 * i, 16, 16), "full") for i in range(len(sources))]
+    """Prepared full-source tensors of ``len(sources)`` 16x16 crops, as a training batch
+    (features not prefiltered: the trainer's default, ``-s prefilter=off``)."""
+    crops = [
+        prepare_tensors(b.crop(8 * i, 10 * i, 16, 16), "full", "off") for i in range(len(sources))
+    ]
     batch = {k: torch.stack([c[k] for c in crops]) for k in crops[0]}
     batch["source"] = torch.tensor(sources)
     return batch
