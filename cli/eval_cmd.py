@@ -88,6 +88,8 @@ def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, 
     An output made by `mcdenoise denoise` records its source; when the source's
     mcdenoise:scene header names another scene than the reference's, eval refuses it unless
     --force. Files without scene headers (your own noisy.exr, ref.exr) are evaluated as given.
+    An output made from one Blender view layer (--profile cycles:<Layer>) is compared with
+    that layer of the reference.
 
     \b
     With --experiment SPEC (no OUTPUTS, no --ref): run the experiment and write
