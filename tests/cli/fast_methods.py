@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import pytest
 import torch
+from click.testing import CliRunner, Result
+from mcdenoise_cli.main import main
 
 from mcdenoise import registry
 from mcdenoise.method import Method
@@ -27,3 +29,8 @@ def add_methods(monkeypatch: pytest.MonkeyPatch, *methods: Method, only: bool = 
         monkeypatch.setattr(registry, "_REGISTRY", {})
     for m in methods:
         monkeypatch.setitem(registry._REGISTRY, m.name, m)
+
+
+def run_cli(*args: object) -> Result:
+    """``mcdenoise ARGS...`` in process (arguments turned into strings), exceptions raised."""
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)

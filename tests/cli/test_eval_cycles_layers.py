@@ -9,9 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
-from fast_methods import add_methods, fast_method
-from mcdenoise_cli.main import main
+from fast_methods import run_cli as run
 
 from mcdenoise.eval import metrics as M
 from mcdenoise.io import load_buffers
@@ -19,17 +17,6 @@ from mcdenoise.io.exr import probe_exr, write_exr
 
 CYCLES = Path(__file__).resolve().parents[1] / "io" / "data" / "cycles_32" / "cycles_spp4.exr"
 H = W = 32
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
-
-
-@pytest.fixture
-def here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    add_methods(monkeypatch, fast_method("box3"))
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
 
 
 def blender_file(path: Path, layers: dict[str, np.ndarray], samples: int | None = None) -> Path:

@@ -10,27 +10,13 @@ import json
 import shutil
 from pathlib import Path
 
-import pytest
-from click.testing import CliRunner
-from fast_methods import add_methods, fast_method
-from mcdenoise_cli.main import main
+from fast_methods import run_cli as run
 
 from mcdenoise.eval.evaluate import same_scene
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 REF = SAMPLES / "ref"
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
-
-
-@pytest.fixture
-def here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    add_methods(monkeypatch, fast_method("box3"))
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
 
 
 def denoise(src: Path, out: str) -> Path:
