@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scene_specs import BALL_SCENE
 
 from mcdenoise.render.effects import plan_effects
 from mcdenoise.render.spec import collect_specs, load_spec
@@ -95,30 +96,7 @@ def test_plain_aov_copies_are_what_mitsuba_writes(tmp_path):
 
     ro = _render_ood_module()
     spec = tmp_path / "plain.toml"
-    spec.write_text(
-        textwrap.dedent(
-            """
-            name = "plain"
-            effects = ["direct"]
-            [camera]
-            origin = [0, 1, 4]
-            target = [0, 0.5, 0]
-            [[objects]]
-            shape = "rectangle"
-            transform = { rotate = [-90, 0, 0], scale = [5, 5, 1] }
-            material = { type = "diffuse", reflectance = [0.6, 0.5, 0.4] }
-            [[objects]]
-            shape = "sphere"
-            center = [0, 0.5, 0]
-            radius = 0.5
-            material = { type = "diffuse", reflectance = [0.2, 0.4, 0.8] }
-            [[lights]]
-            type = "point"
-            position = [1, 3, 2]
-            intensity = [20, 20, 20]
-            """
-        )
-    )
+    spec.write_text(BALL_SCENE.format(name="plain"), encoding="utf-8")
     canon = tmp_path / "r"
     config = RenderConfig(out=canon, width=8, height=6, spp=ro.LEVELS, ref_spp=8,
                           variant="scalar_rgb")  # fmt: skip

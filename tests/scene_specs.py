@@ -1,4 +1,4 @@
-"""Scene specs shared by the CLI tests (a sphere on a floor, one point light, direct only)."""
+"""Scene specs shared by tests (a sphere on a floor, one point light, direct only)."""
 
 BALL_SCENE = """
 name = "{name}"
