@@ -6,6 +6,7 @@ Imported by the conftests of tests/filters, tests/prep and tests/methods (``test
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -55,3 +56,13 @@ def make_scene(h: int = 32, w: int = 32, seed: int = 0, noise: float = 0.3) -> N
 def relmse(x: torch.Tensor, ref: torch.Tensor) -> float:
     """mean((x - r)² / (r² + 0.01)), as in the evaluation code."""
     return float(((x - ref) ** 2 / (ref**2 + 0.01)).mean())
+
+
+def lognormal_constant(seed: int = 0):
+    """A constant grey seen through 4 lognormal samples per pixel: ``(colour of the mean, its
+    variance (1, 1, H, W), true value)``. Skewed like Monte Carlo noise: a pixel that drew a
+    bright sample is both brighter and has a larger variance estimate."""
+    g = torch.Generator().manual_seed(seed)
+    s = torch.exp(torch.randn(4, 1, 1, 32, 32, generator=g, dtype=torch.float64))
+    s = s.expand(4, 1, 3, 32, 32)
+    return s.mean(0), s.var(0).mean(1, keepdim=True) / 4, math.exp(0.5)

@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from noisy_scene import lognormal_constant
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.cross_bilateral import CrossBilateral, cross_bilateral
@@ -372,16 +373,6 @@ def test_cuda_matches_cpu(scene) -> None:
     gpu = cross_bilateral(scene.noisy.float().cuda(), [scene.albedo.float().cuda()], **kw)
     assert gpu.device.type == "cuda"
     torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-5)
-
-
-def lognormal_constant(seed: int = 0):
-    """A constant grey seen through 4 lognormal samples per pixel: ``(colour of the mean, its
-    variance (1, 1, H, W), true value)``. Skewed like Monte Carlo noise: a pixel that drew a
-    bright sample is both brighter and has a larger variance estimate."""
-    g = torch.Generator().manual_seed(seed)
-    s = torch.exp(torch.randn(4, 1, 1, 32, 32, generator=g, dtype=torch.float64))
-    s = s.expand(4, 1, 3, 32, 32)
-    return s.mean(0), s.var(0).mean(1, keepdim=True) / 4, math.exp(0.5)
 
 
 def test_var_cap_loses_less_energy_of_skewed_noise() -> None:
