@@ -97,6 +97,15 @@ def denoise(
 
     Each output keeps the input's size and records the method, its parameters, the source file
     and the seconds the method took in its header (see `mcdenoise info OUT.exr`).
+
+    A temporal method (`mcdenoise methods` says which) takes each folder as one sequence (the
+    layout of `mcdenoise render --frames`: frame_0000.exr ..., ordered by frame number; the
+    ref/ subfolder is not read) and the files given one by one as one more. The frames are
+    checked first (consecutive numbers, one size, motion vectors in every frame: the profiles
+    find them by name, --mapping names other channels); outputs are written frame by frame,
+    and a re-run skips the frames already done (replaying the frames before the first missing
+    one through the method, so its history is exact). A per-frame method takes a folder as
+    separate images.
     """
     from mcdenoise import denoise as dn
 
@@ -147,6 +156,8 @@ def methods_cmd():
             f"{'':<18} needs: {', '.join(m.requires)}; uses if present: "
             f"{', '.join(m.uses) or '-'}; {state}"
         )
+        if m.temporal:
+            click.echo(f"{'':<18} temporal: a folder of frames is one sequence, in frame order")
         if m.defaults:
             ps = ", ".join(f"{k}={v}" for k, v in m.defaults.items())
             click.echo(f"{'':<18} parameters: {ps}")

@@ -2,6 +2,10 @@
 
 :func:`denoise_sequence` denoises the frames of one sequence with one method; :func:`denoise`
 is its one-frame case and :func:`denoise_file` reads and writes EXR files around it.
+:func:`plan_jobs` / :func:`run_jobs` are ``mcdenoise denoise``: a folder of frames is one
+sequence for a temporal method (:class:`SequenceJob`, checked from the headers by
+:func:`scan_sequence` before anything is written, outputs written frame by frame, a re-run
+resumes) and a batch of stills for a per-frame method.
 ``mcdenoise denoise`` (:func:`denoise_paths`), ``mcdenoise eval --experiment`` and the
 experiment runner all come through here, so a method registered in :mod:`mcdenoise.registry`
 (see :mod:`mcdenoise.method` for what a method is: per-frame or temporal) is available
@@ -13,7 +17,6 @@ from __future__ import annotations
 import itertools
 import json
 import os
-import re
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -23,6 +26,22 @@ from typing import Any
 import torch
 
 from mcdenoise import __version__
+from mcdenoise.denoise_files import (
+    FrameInfo,
+    ReadOptions,
+    SequenceJob,
+    WriteOptions,
+    check_output_folder,
+    check_output_path,
+    collect_inputs,
+    collect_sequences,
+    file_in_the_way,
+    frame_info,
+    make_output_folder,
+    output_complete,
+    plan_outputs,
+    scan_sequence,
+)
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError, sanitize
 from mcdenoise.registry import (
@@ -44,26 +63,31 @@ __all__ = [
     "DenoisePlan",
     "DenoiseResult",
     "FileResult",
+    "FrameInfo",
     "JobOutcome",
     "Method",
     "MethodChoice",
     "OptionError",
     "ReadOptions",
+    "SequenceJob",
     "WriteOptions",
     "available_methods",
     "best_method",
     "check_output_folder",
     "choose_method",
     "collect_inputs",
+    "collect_sequences",
     "denoise",
     "denoise_file",
     "denoise_paths",
     "denoise_sequence",
     "file_in_the_way",
+    "frame_info",
     "get_method",
     "make_output_folder",
     "method_aliases",
     "methods",
+    "output_complete",
     "params_from_strings",
     "parse_methods",
     "plan_jobs",
@@ -71,6 +95,7 @@ __all__ = [
     "register",
     "resolve_device",
     "run_jobs",
+    "scan_sequence",
 ]
 
 
@@ -330,24 +355,6 @@ def _run_sequence(
 
 
 @dataclass
-class ReadOptions:
-    """How input files are read (see :func:`mcdenoise.io.load_buffers`)."""
-
-    profile: str = "auto"
-    mapping: str | None = None
-    part: str | None = None
-    spp: int | None = None
-
-
-@dataclass
-class WriteOptions:
-    """How outputs are written: ``half`` (float16, clamped and counted) and compression."""
-
-    half: bool = False
-    compression: str = "zip"
-
-
-@dataclass
 class FileResult:
     input: Path
     output: Path
@@ -388,17 +395,32 @@ def denoise_file(
     attributes (:data:`SCENE_ATTRIBUTES`). ``buffers``: the input already read with ``read`` (it is
     then not read again).
     """
-    from mcdenoise.io import load_buffers, save_buffers
+    from mcdenoise.io import load_buffers
 
     read = read or ReadOptions()
     write = write or WriteOptions()
     src, dst = Path(input_path), Path(output_path)
-    _check_output_path(src, dst)
+    check_output_path(src, dst)
     if buffers is None:
         buffers = load_buffers(
             src, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
         )
     result = denoise(buffers, method, params=params, device=device)
+    return _write_result(src, dst, buffers, result, read, write)
+
+
+def _write_result(
+    src: Path,
+    dst: Path,
+    buffers: FeatureBuffers,
+    result: DenoiseResult,
+    read: ReadOptions,
+    write: WriteOptions,
+) -> FileResult:
+    """Write ``result`` (the output of ``src``, read into ``buffers`` with ``read``) to
+    ``dst`` atomically, with the header attributes :func:`denoise_file` describes."""
+    from mcdenoise.io import save_buffers
+
     out = FeatureBuffers(
         {"color": result.image},
         spp=buffers.spp,
@@ -427,145 +449,86 @@ def denoise_file(
 
 #: Header attributes of an input that say which scene it shows (written by
 #: ``mcdenoise render``); copied into each output so ``mcdenoise eval`` can check the pairing.
-SCENE_ATTRIBUTES = ("mcdenoise:scene", "mcdenoise:image", "mcdenoise:frame")
+SCENE_ATTRIBUTES = (
+    "mcdenoise:scene",
+    "mcdenoise:image",
+    "mcdenoise:frame",
+    "mcdenoise:sequence",
+)
 
 
-def _check_output_path(src: Path, dst: Path) -> None:
-    if dst.exists() and dst.is_dir():
-        raise InputError(f"output {dst} is a folder; give a file name ending in .exr")
-    if dst.suffix.lower() != ".exr":
-        raise InputError(f"output {dst} must end in .exr")
-    if src.exists() and dst.exists() and src.resolve() == dst.resolve():
-        raise InputError(f"output {dst} is the input file; choose another name")
-    parent = dst.parent if str(dst.parent) else Path(".")
-    blocker = file_in_the_way(parent)
-    if blocker is not None:
-        raise InputError(f"cannot write {dst}: {blocker} is a file, not a folder")
-    if not parent.is_dir():
-        raise InputError(f"output folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise InputError(f"output folder {parent} is not writable")
+def _run_sequence_job(
+    job: SequenceJob,
+    plan: DenoisePlan,
+    device: str | torch.device,
+    read: ReadOptions,
+    write: WriteOptions,
+    bar: Any,
+) -> Iterator[JobOutcome]:
+    """Denoise one sequence with its temporal method, writing each output as soon as it is
+    finished; yield one outcome per frame.
 
-
-_EXTENSION = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}")
-
-
-def file_in_the_way(path: str | os.PathLike[str]) -> Path | None:
-    """The first of ``path``'s existing ancestors (or ``path`` itself) that is not a folder,
-    else ``None``: what stops ``path`` being used or created as a folder.
-
-    >>> file_in_the_way("no/such/folder") is None
-    True
+    Resume: a frame whose output is complete (:func:`output_complete`) is not written again.
+    The method's history is rebuilt exactly: the frames before the first missing output are
+    run through the method again, their outputs discarded ("replayed"), so every output
+    written equals that of an uninterrupted run, at the cost of denoising those frames once
+    more. The run stops after the last missing output.
     """
-    p = Path(path)
-    for q in [*reversed(p.parents), p]:  # from the top down
-        if not q.exists():
-            return None
-        if not q.is_dir():
-            return q
-    return None
+    m = job.method
+    if job.skipped is not None:  # --method all: one line for the whole sequence
+        bar.update(len(job.inputs))
+        yield JobOutcome(DenoiseJob(job.source, None, m), skipped=job.skipped)
+        return
+    frame_jobs = [DenoiseJob(s, d, m) for s, d in zip(job.inputs, job.outputs)]
+    for src, dst in zip(job.inputs, job.outputs):
+        check_output_path(src, dst)
+    params = m.resolve_params(plan.params)
+    done = [output_complete(d, s, m, params, plan.part) for s, d in zip(job.inputs, job.outputs)]
+    todo = [i for i, d in enumerate(done) if not d]
+    if not todo:
+        for fj in frame_jobs:
+            bar.update(1)
+            yield JobOutcome(fj, skipped=f"{fj.output} is done (an earlier run wrote it)")
+        return
+    last = todo[-1]
+    loaded: dict[int, FeatureBuffers] = {}
 
-
-def check_output_folder(
-    path: str | os.PathLike[str], option: str = "-o", *, exr_ok: bool = False
-) -> Path:
-    """Check that ``path`` (the value of ``option``) can be an output folder; return it.
-
-    ``exr_ok``: the option also takes an ``.exr`` file name (``denoise -o``), which the
-    message then mentions.
-
-    An existing folder is fine. Refused, with one line naming the cause: a file in the way
-    (``text.exr is a file, not a folder``), and a new name ending in a file extension
-    (``out/p.txt``), which is nearly always a file name given where a folder is wanted.
-
-    Raises:
-        InputError: as above.
-    """
-    p = Path(path)
-    blocker = file_in_the_way(p)
-    if blocker is not None:
-        raise InputError(f"{option} {p}: {blocker} is a file, not a folder")
-    if not p.exists() and _EXTENSION.fullmatch(p.suffix):
-        what = "an output file must end in .exr and " if exr_ok else ""
-        raise InputError(
-            f"{option} {p}: {what}a new folder must not have a file extension like {p.suffix!r}"
-        )
-    return p
-
-
-def make_output_folder(
-    path: str | os.PathLike[str], option: str = "-o", *, exr_ok: bool = False
-) -> Path:
-    """:func:`check_output_folder`, then create it (and its parents)."""
-    p = check_output_folder(path, option, exr_ok=exr_ok)
-    p.mkdir(parents=True, exist_ok=True)
-    return p
-
-
-def collect_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
-    """Expand files and folders (``*.exr``, not recursive, sorted) into a list of EXR files."""
-    from mcdenoise.io.atomic import TMP_PREFIX
-
-    files: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            found = sorted(
-                q
-                for q in p.iterdir()
-                if q.suffix.lower() == ".exr" and q.is_file() and not q.name.startswith(TMP_PREFIX)
+    def frames() -> Iterator[FeatureBuffers]:
+        for i in range(last + 1):
+            fb = _load(job.inputs[i], read)
+            loaded[i] = FeatureBuffers(
+                {},
+                spp=fb.spp,
+                source=fb.source,
+                profile=fb.profile,
+                attributes=fb.attributes,
+                data_window=fb.data_window,
+                display_window=fb.display_window,
             )
-            if not found:
-                raise InputError(f"folder {p} holds no .exr files")
-            files.extend(found)
-        elif p.exists():
-            files.append(p)
+            yield fb
+
+    results = denoise_sequence(frames(), m, params=plan.params, device=device)
+    for i, result in enumerate(results):
+        fj, meta = frame_jobs[i], loaded.pop(i)
+        if done[i]:
+            bar.update(1)
+            yield JobOutcome(fj, skipped=f"{fj.output} is done (an earlier run wrote it)")
         else:
-            raise InputError(f"input {p} does not exist")
-    if not files:
-        raise InputError("no input files given")
-    if len(set(f.resolve() for f in files)) != len(files):
-        raise InputError("the same input file is given twice")
-    return files
-
-
-def plan_outputs(
-    inputs: Sequence[Path],
-    output: str | os.PathLike[str] | None,
-    method_name: str,
-    *,
-    part: str | None = None,
-) -> list[Path]:
-    """Output path for each input.
-
-    * one input and ``output`` a file name (``*.exr``) -> that file;
-    * ``output`` a folder (existing, or a new name without a file extension: ``out/p.txt`` is
-      refused, see :func:`check_output_folder`) -> ``folder/<stem>_<method>.exr``;
-    * no ``output`` -> ``<stem>_<method>.exr`` next to each input.
-
-    With ``part`` (a level of a multi-part file, e.g. ``spp16``) the name is
-    ``<stem>_<part>_<method>.exr``, so outputs of different levels never collide.
-    """
-    if output is not None:
-        out = Path(output)
-        if out.suffix.lower() == ".exr" and not out.is_dir():
-            if len(inputs) != 1:
-                raise InputError(
-                    f"{len(inputs)} inputs but -o {out} names one file; give a folder instead"
-                )
-            parent = out.parent if str(out.parent) else Path(".")
-            blocker = file_in_the_way(parent)
-            if blocker is not None:
-                raise InputError(f"-o {out}: {blocker} is a file, not a folder")
-            return [out]
-        check_output_folder(out, "-o", exr_ok=True)
-        folders = [out] * len(inputs)
-    else:
-        folders = [p.parent for p in inputs]
-    tag = f"_{part}" if part else ""
-    outs = [f / f"{p.stem}{tag}_{method_name}.exr" for f, p in zip(folders, inputs)]
-    if len(set(outs)) != len(outs):
-        raise InputError("two inputs would write the same output name; use separate folders")
-    return outs
+            bar.set_postfix_str(f"{fj.input.name} {m.name}")
+            assert fj.output is not None
+            res = _write_result(fj.input, fj.output, meta, result, read, write)
+            bar.update(1)
+            yield JobOutcome(fj, res)
+        if i == last:
+            break
+        if i + 1 < todo[0]:
+            bar.set_postfix_str(f"{job.inputs[i + 1].name} {m.name} (history)")
+    close = getattr(results, "close", None)
+    if close is not None:
+        close()
+    for fj in frame_jobs[last + 1 :]:
+        bar.update(1)
+        yield JobOutcome(fj, skipped=f"{fj.output} is done (an earlier run wrote it)")
 
 
 # --- jobs: many inputs, one or several methods ----------------------------------------------
@@ -625,7 +588,7 @@ class JobOutcome:
 class DenoisePlan:
     """The jobs of one ``mcdenoise denoise`` call and the settings they share."""
 
-    jobs: list[DenoiseJob]
+    jobs: list[DenoiseJob | SequenceJob]  # a sequence job: one temporal method, one sequence
     params: dict[str, Any]  # parameter overrides (one method only)
     output: Path | None  # -o: a file (one output) or a folder (created when run)
     part: str | None  # the level of a multi-part input (part of the output names)
@@ -640,8 +603,16 @@ def plan_jobs(
     params: Mapping[str, Any] | None = None,
     model: str | None = None,
     part: str | None = None,
+    read: ReadOptions | None = None,
 ) -> DenoisePlan:
-    """Check the options of ``mcdenoise denoise`` and plan its outputs; nothing is read yet.
+    """Check the options of ``mcdenoise denoise`` and plan its outputs; of the inputs only
+    the headers of a temporal method's frames are read (:func:`scan_sequence`).
+
+    A per-frame method gets one job per input file (a folder: each of its ``*.exr``). A
+    temporal method (:attr:`Method.temporal <mcdenoise.method.Method.temporal>`) gets one
+    :class:`SequenceJob` per folder (the folder's frames, in frame order: the layout of
+    ``mcdenoise render --frames``, whose ``ref/`` subfolder is not read) and one for the files
+    given one by one, together; the sequence is checked here, before anything is written.
 
     Args:
         inputs: EXR files and folders of them (see :func:`collect_inputs`).
@@ -655,13 +626,19 @@ def plan_jobs(
             names the method).
         model: a trained model (run folder or model file) for a learned method: the same as
             ``params["model"]``; with ``method="auto"`` the model file names the method.
-        part: the level of multi-part inputs to read (``spp16``); part of the output names.
+        part: the level of multi-part inputs to read (``spp16``); part of the output names
+            (default: ``read.part``).
+        read: how the inputs are read (profile, mapping, part, spp): for the frame checks.
 
     Raises:
         OptionError: options that do not go together (several methods with one parameter
             set or one output file, ``--model`` with a method that takes no model, ...).
-        InputError: a missing input, an unknown or unavailable method, a bad parameter.
+        InputError: a missing input, an unknown or unavailable method, a bad parameter, a
+            sequence a temporal method cannot take (:func:`scan_sequence`; with ``all``
+            that method is skipped on it instead).
     """
+    read = read or ReadOptions(part=part)
+    part = read.part if part is None else part
     files = collect_inputs(inputs)
     if model is not None and method == "auto":
         from mcdenoise.models.weights import model_method
@@ -682,12 +659,15 @@ def plan_jobs(
         raise OptionError("several methods write several files: give -o a folder")
     if overrides and method == "auto":
         raise OptionError("--param needs an explicit --method (the default depends on the input)")
-    jobs: list[DenoiseJob] = []
+    jobs: list[DenoiseJob | SequenceJob] = []
     if method == "auto":  # decided per input, when it is read: the best method it can feed
         plan_outputs(files, output, "auto", part=part)  # refuses -o x.exr for several inputs
         jobs = [DenoiseJob(src, None, None) for src in files]
     else:
         for m in chosen:
+            if m.temporal:
+                jobs += _plan_sequences(inputs, output, m, read, part, skip=method == "all")
+                continue
             outs = plan_outputs(files, output, m.name, part=part)
             jobs += [DenoiseJob(src, dst, m) for src, dst in zip(files, outs)]
     return DenoisePlan(
@@ -699,6 +679,38 @@ def plan_jobs(
     )
 
 
+def _plan_sequences(
+    inputs: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str] | None,
+    m: Method,
+    read: ReadOptions,
+    part: str | None,
+    *,
+    skip: bool,
+) -> list[SequenceJob]:
+    """The :class:`SequenceJob` of the temporal method ``m`` for each sequence of
+    ``inputs`` (:func:`collect_sequences`), checked by :func:`scan_sequence`; with ``skip``
+    (``--method all``) a sequence ``m`` refuses is recorded as skipped, with the reason."""
+    jobs: list[SequenceJob] = []
+    for source, files in collect_sequences(inputs):
+        try:
+            frames = scan_sequence(source, files, m, read)
+        except InputError as err:
+            if not skip:
+                raise
+            jobs.append(SequenceJob(source, tuple(files), (), m, skipped=str(err)))
+            continue
+        paths = [f.path for f in frames]
+        outs = plan_outputs(paths, output, m.name, part=part)
+        jobs.append(
+            SequenceJob(source, tuple(paths), tuple(outs), m, tuple(f.number for f in frames))
+        )
+    outs = [o for j in jobs for o in j.outputs]
+    if len(set(outs)) != len(outs):
+        raise InputError("two inputs would write the same output name; use separate folders")
+    return jobs
+
+
 def run_jobs(
     plan: DenoisePlan,
     *,
@@ -707,11 +719,14 @@ def run_jobs(
     write: WriteOptions | None = None,
     progress: bool = True,
 ) -> Iterator[JobOutcome]:
-    """Run the jobs of ``plan`` one after the other (each through :func:`denoise_file`).
+    """Run the jobs of ``plan`` one after the other (each through :func:`denoise_file`; a
+    :class:`SequenceJob` frame by frame through :func:`denoise_sequence`, see
+    :func:`_run_sequence_job` for its resume).
 
     Creates the output folder first. Yields each job's outcome as soon as its file is
-    written; with ``progress`` (see :func:`mcdenoise.progress.progress_bar`: a bar on a
-    terminal, lines in a log) the jobs are counted on stderr when there are several.
+    written (one per frame of a sequence); with ``progress`` (see
+    :func:`mcdenoise.progress.progress_bar`: a bar on a terminal, lines in a log) the images,
+    or the frames when there is a sequence, are counted on stderr when there are several.
     """
     from mcdenoise.progress import progress_bar
 
@@ -719,14 +734,19 @@ def run_jobs(
     out = plan.output
     if out is not None and out.suffix.lower() != ".exr":
         make_output_folder(out, exr_ok=True)
+    units = sum(len(j.inputs) if isinstance(j, SequenceJob) else 1 for j in plan.jobs)
+    frames = any(isinstance(j, SequenceJob) for j in plan.jobs)
     bar = progress_bar(
-        total=len(plan.jobs),
+        total=units,
         desc="denoise",
-        unit="image",
-        progress=progress if len(plan.jobs) > 1 else False,
+        unit="frame" if frames else "image",
+        progress=progress if units > 1 else False,
     )
     try:
         for job in plan.jobs:
+            if isinstance(job, SequenceJob):
+                yield from _run_sequence_job(job, plan, device, read, write or WriteOptions(), bar)
+                continue
             buffers = None
             if job.method is None:
                 bar.set_postfix_str(f"{job.input.name} auto")
@@ -835,5 +855,5 @@ def denoise_paths(
     ``read.part`` is the level read from multi-part inputs and part of the output names.
     """
     read = read or ReadOptions()
-    plan = plan_jobs(inputs, output, method, params=params, model=model, part=read.part)
+    plan = plan_jobs(inputs, output, method, params=params, model=model, part=read.part, read=read)
     return run_jobs(plan, device=device, read=read, write=write, progress=progress)
