@@ -22,14 +22,16 @@ compares their counts (e.g. a baseline and a re-measure). ``--json FILE`` (``-``
 writes everything as JSON. The exit status is 0 whatever the counts (this is a benchmark,
 not a test); 2 when an input cannot be read.
 
-``--run SPEC -o DIR`` first runs the experiment (``demo`` names data/experiments/demo.toml),
-one torch thread. ``--renders SRC`` copies the render folder of an earlier experiment
-(``SRC/data``) into ``DIR`` first, so a re-measure after a code change re-denoises every unit
-but renders nothing. A fresh ``DIR`` is required: the runner reuses a unit whose record has
-the same fingerprint, and the fingerprint holds the mcdenoise version, not the code, so a
-folder of an earlier run would report the earlier code's numbers (``--resume`` continues an
-interrupted re-measure of the same code). Only relMSE is read here, so the re-measure times
-each unit once without warm-up (``--repetitions``/``--warmup`` restore the spec's timing).
+``--run SPEC -o DIR`` first runs the experiment (``demo`` names data/experiments/demo.toml)
+with one torch thread, as ``mcdenoise eval --experiment SPEC -o DIR --threads 1`` does.
+``--renders SRC`` copies the render folder of an earlier experiment (``SRC/data``) into
+``DIR/data`` first and uses it as the experiment's ``[scenes] folder``, so a re-measure after
+a code change re-denoises every unit but renders nothing. ``DIR`` must be new: the runner
+reuses a unit whose record has the same fingerprint, and the fingerprint holds the mcdenoise
+version, not the code, so the folder of an earlier run would give the earlier code's numbers
+(``--resume`` continues an interrupted run of the same code). Only relMSE is read here, so
+each unit is timed once without warm-up (``--repetitions 3 --warmup 1`` for the demo's
+timing); the denoisers are deterministic, so relMSE does not depend on it.
 
     python benchmarks/bench_robust.py /tmp/work/demo-base
     python benchmarks/bench_robust.py BASE NEW --json robust.json
@@ -506,12 +508,15 @@ def run(
         if not dst.exists():
             dst.parent.mkdir(parents=True, exist_ok=True)
             shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.lock"))
+        # as a `[scenes] folder`: used as it is, never rendered into, even where a scene spec
+        # changed since (a re-render would change the inputs the numbers are compared on)
+        s = dataclasses.replace(s, folder=dst.resolve())
     try:
         summary = run_experiment(s, out, progress=progress)
     except McdenoiseError as err:
         raise InputError(f"{path}: {' '.join(str(err).split())}") from None
-    for line, to_stderr in summary.messages():
-        print(line, file=sys.stderr if to_stderr else sys.stdout)
+    for line, _ in summary.messages():  # on stderr: stdout is the analysis (--json -)
+        print(line, file=sys.stderr)
     return out
 
 

@@ -143,7 +143,78 @@ def test_unreadable_input_is_one_line_and_status_2(bench, tmp_path, capsys, cont
     assert err.startswith("bench_robust: error: ") and err.count("\n") == 1
 
 
+def _synthetic():
+    """tests/experiments/synthetic_data.py: a render folder without Mitsuba, fake methods."""
+    path = ROOT / "tests" / "experiments" / "synthetic_data.py"
+    spec = importlib.util.spec_from_file_location("_synthetic_data_for_bench_robust", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_run_re_denoises_on_copied_renders_without_rendering(bench, tmp_path, monkeypatch, capsys):
+    synthetic = _synthetic()
+    src = synthetic.make_render_folder(tmp_path / "base" / "data", spp=(1, 2, 4))
+    manifest = (src / "manifest.json").read_text()
+    fake = synthetic.FakeMethods(monkeypatch)
+    fake.add("fine")  # a 3x3 box filter
+
+    def spiky(b, p, d):  # "fine" but 50x too bright at 2 spp: worse than the noisy input
+        return synthetic.box3(b["color"]) * (50.0 if b.spp == 2 else 1.0)
+
+    fake.add("spiky", spiky)
+    # the spec names a scene that would need Mitsuba: --renders must keep it from rendering
+    spec = tmp_path / "exp.toml"
+    spec.write_text(
+        f"""name = "t"
+methods = ["fine", "spiky"]
+metrics = ["relmse"]
+[scenes]
+specs = ["{ROOT / "data" / "scenes" / "cornell.toml"}"]
+[render]
+resolution = [32, 24]
+spp = [1, 2, 4]
+[stats]
+baseline = "noisy"
+[report]
+strip_spp = 2
+""",
+        encoding="utf-8",
+    )
+    out = tmp_path / "new"
+    argv = ["--run", str(spec), "-o", str(out), "--renders", str(tmp_path / "base")]
+    assert bench.main([*argv, "--baseline", "fine", "--json", "-"]) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert "ran 18 unit(s)" in captured.err  # 2 scenes x 3 levels x (noisy, fine, spiky)
+    (exp,) = doc["experiments"]
+    assert exp["scenes"] == ["alpha", "beta"] and exp["spp"] == [1, 2, 4]
+    assert {(v["rule"], v["method"], v["spp"]) for v in exp["violations"]} == {
+        ("a", "spiky", 2),
+        ("b", "spiky", 2),
+        ("c", "spiky", 2),
+    } and exp["counts"] == {"a": 2, "b": 2, "c": 2}  # both scenes
+    assert fake.calls == {"fine": 6, "spiky": 6}  # one run per unit, no warm-up
+    assert (out / "data" / "manifest.json").read_text() == manifest
+    assert (src / "manifest.json").read_text() == manifest
+    # a second run into the same folder would reuse the first run's units: refused
+    assert bench.main(argv) == 2
+    assert "--resume" in capsys.readouterr().err
+
+
 def test_run_refuses_a_folder_with_unit_records(bench, tmp_path, capsys):
     (tmp_path / "old" / "work").mkdir(parents=True)
     assert bench.main(["--run", "demo", "-o", str(tmp_path / "old")]) == 2
     assert "--resume" in capsys.readouterr().err
+
+
+def test_the_robust_subset_spec_loads():
+    from mcdenoise.experiments import load_experiment
+
+    spec = load_experiment(ROOT / "data" / "experiments" / "robust.toml")
+    full = load_experiment(ROOT / "data" / "experiments" / "full.toml")
+    assert set(spec.scene_specs) == set(full.scene_specs) and 0 < spec.random <= full.random
+    assert (spec.width, spec.height, spec.spp) == (128, 128, (1, 2, 4, 8, 16, 32, 64))
+    assert spec.methods == "all" and spec.baseline == "oidn" and spec.threads == 1
