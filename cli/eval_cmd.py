@@ -11,14 +11,16 @@ from mcdenoise_cli.options import threads_option
 def metrics_help() -> str:
     """The ``--metrics`` help, from the registered metrics (:data:`mcdenoise.eval.metrics.METRICS`)."""
     from mcdenoise.eval.metrics import METRICS, PARTS
+    from mcdenoise.eval.temporal import TEMPORAL_METRICS
 
     names = ",".join(n for n, m in METRICS.items() if m.part_of is None)
     parts = "".join(f"; {k} also gives {','.join(v)}" for k, v in PARTS.items())
     optional = ",".join(n for n, m in METRICS.items() if m.optional)
     extra = f"; {optional} only when its package is installed" if optional else ""
+    temporal = ",".join(TEMPORAL_METRICS)
     return (
-        f"Comma-separated metrics (default: all: {names}{parts}{extra}; with --experiment: "
-        "the spec's)."
+        f"Comma-separated metrics (default: all: {names}{parts}{extra}; sequences also "
+        f"{temporal}; with --experiment: the spec's)."
     )
 
 
@@ -77,12 +79,22 @@ class _MetricsOption(click.Option):
     help="Progress on stderr (default: a bar on a terminal, a few plain lines in a log).",
 )
 @click.option(
+    "--warmup",
+    type=click.IntRange(min=0),
+    default=None,
+    metavar="N",
+    help="Sequences: the first N frames (history warm-up) are reported apart from the means "
+    "(default: 2; 16 is Noisebase's setting, 0 averages every frame).",
+)
+@click.option(
     "--force",
     is_flag=True,
     help="Evaluate outputs whose recorded source shows another scene than the reference "
     "(a warning instead of an error).",
 )
-def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, progress, force):
+def eval_cmd(
+    threads, outputs, reference, inputs, out_dir, metrics, experiment, progress, warmup, force
+):
     """Compare denoised OUTPUTS (files or folders) with a reference; write a report.
 
     An output made by `mcdenoise denoise` records its source; when the source's
@@ -90,6 +102,13 @@ def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, 
     --force. Files without scene headers (your own noisy.exr, ref.exr) are evaluated as given.
     An output made from one Blender view layer (--profile cycles:<Layer>) is compared with
     that layer of the reference.
+
+    \b
+    Sequences: when --ref is a folder of frames (frame_0000.exr, ...; DIR/<id>/ref of
+    `mcdenoise render --frames`), each OUTPUT is a folder of denoised frames
+    (`mcdenoise denoise DIR/<id> -o OUT`), matched by frame name. Per sequence: per-frame
+    metrics, temporal relMSE, tPSNR and tRMAE (Noisebase's), with the first --warmup frames
+    reported apart; a per-frame table; frames.csv in -o.
 
     \b
     With --experiment SPEC (no OUTPUTS, no --ref): run the experiment and write
@@ -105,6 +124,8 @@ def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, 
             raise click.UsageError("--experiment takes no OUTPUTS, --ref or --input")
         if force:
             raise click.UsageError("--force applies to --ref, not to --experiment")
+        if warmup is not None:
+            raise click.UsageError("--warmup applies to --ref sequences, not to --experiment")
         _experiment(experiment, out_dir, names, mode, threads)
         return
     if reference is None:
@@ -113,6 +134,7 @@ def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, 
         raise click.UsageError("Missing argument 'OUTPUTS...' (or give --experiment SPEC).")
 
     from mcdenoise.eval import evaluate, write_report
+    from mcdenoise.eval.temporal import WARMUP_FRAMES
 
     result = evaluate(
         reference,
@@ -123,10 +145,14 @@ def eval_cmd(threads, outputs, reference, inputs, out_dir, metrics, experiment, 
         progress=(sys.stderr.isatty() if mode == "auto" else mode),
         force=force,
         warn=lambda message: click.echo(f"mcdenoise: warning: {message}", err=True),
+        warmup=WARMUP_FRAMES if warmup is None else warmup,
     )
     paths = write_report(result, out_dir)
-    click.echo(result.format_table() if hasattr(result, "format_table") else "")
-    for kind in ("html", "json", "csv"):
+    click.echo(result.format_table())
+    if result.has_sequences:
+        click.echo("")
+        click.echo(result.format_frames())
+    for kind in ("html", "json", "csv", "frames"):
         if kind in paths:
             click.echo(f"{kind}: {paths[kind]}")
 

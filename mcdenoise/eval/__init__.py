@@ -6,14 +6,28 @@ Typical use (what ``mcdenoise eval`` does)::
     result = evaluate("data/samples/ref", ["out/"])     # reference folder, output folder
     write_report(result, "report/")                     # results.json, results.csv, report.html
 
+Sequences (a reference folder of ``frame_0000.exr`` ...) are evaluated the same way, with
+temporal metrics and the warm-up frames apart::
+
+    result = evaluate("data/gen/seq_0/ref", ["out_nlm/", "out_svgf/"], warmup=2)
+
 Modules: :mod:`~mcdenoise.eval.metrics` (relMSE, SMAPE, MSE, PSNR, SSIM, FLIP and their
-registry), :mod:`~mcdenoise.eval.tonemap` (sRGB, exposure, false colour),
+registry), :mod:`~mcdenoise.eval.temporal` (temporal relMSE, Noisebase's tPSNR and tRMAE,
+per-frame metrics of a sequence), :mod:`~mcdenoise.eval.tonemap` (sRGB, exposure, false colour),
 :mod:`~mcdenoise.eval.preview` (crop choice), :mod:`~mcdenoise.eval.results` (records and
 their JSON form), :mod:`~mcdenoise.eval.evaluate` (files and arrays -> records),
 :mod:`~mcdenoise.eval.report` (records -> files).
 """
 
-from mcdenoise.eval.evaluate import evaluate, evaluate_arrays, match_prefix, run_eval
+from mcdenoise.eval.evaluate import (
+    evaluate,
+    evaluate_arrays,
+    evaluate_sequence_arrays,
+    evaluate_sequences,
+    match_prefix,
+    run_eval,
+    sequence_frames,
+)
 from mcdenoise.eval.metrics import (
     METRICS,
     Metric,
@@ -29,19 +43,43 @@ from mcdenoise.eval.metrics import (
     ssim,
 )
 from mcdenoise.eval.report import write_report
-from mcdenoise.eval.results import EvalRecord, EvalResult, ScenePreview
+from mcdenoise.eval.results import (
+    EvalRecord,
+    EvalResult,
+    FrameRecord,
+    ScenePreview,
+    SequenceDetail,
+)
+from mcdenoise.eval.temporal import (
+    TEMPORAL_METRICS,
+    WARMUP_FRAMES,
+    SequenceEvaluator,
+    SequenceValues,
+    sequence_metrics,
+    temporal_relmse,
+    tpsnr,
+    trmae,
+)
 
 __all__ = [
     "METRICS",
+    "TEMPORAL_METRICS",
+    "WARMUP_FRAMES",
     "EvalRecord",
     "EvalResult",
+    "FrameRecord",
     "Metric",
     "MetricUnavailable",
     "MetricValues",
     "ScenePreview",
+    "SequenceDetail",
+    "SequenceEvaluator",
+    "SequenceValues",
     "compute_metrics",
     "evaluate",
     "evaluate_arrays",
+    "evaluate_sequence_arrays",
+    "evaluate_sequences",
     "flip",
     "match_prefix",
     "mse",
@@ -49,7 +87,12 @@ __all__ = [
     "relmse",
     "relmse_map",
     "run_eval",
+    "sequence_frames",
+    "sequence_metrics",
     "smape",
     "ssim",
+    "temporal_relmse",
+    "tpsnr",
+    "trmae",
     "write_report",
 ]

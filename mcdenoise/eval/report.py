@@ -6,6 +6,10 @@ each column in bold, failed outputs in red) and an image strip: the noisy input(
 output and the reference through the same crop and the same tonemap (exposure chosen from the
 reference), each with its per-pixel relMSE error map in false colour on one shared log scale.
 
+A sequence (a folder of frames) is one row per method: its metrics are the means past the
+warm-up, with the warm-up's value under each; a per-frame table follows, ``frames.csv`` holds
+every frame's values, and the image strip shows the last frame.
+
 Every file is written atomically (:mod:`mcdenoise.io.atomic`). Non-finite numbers follow
 :mod:`mcdenoise.eval.results`: ``"inf"`` strings in JSON and CSV, never bare ``Infinity``/``NaN``.
 """
@@ -29,6 +33,7 @@ import numpy as np
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import METRICS, PARTS, flip_status, relmse_map
 from mcdenoise.eval.results import ROLE_NOISY, EvalRecord, EvalResult, ScenePreview, encode_float
+from mcdenoise.eval.temporal import metric_spec
 from mcdenoise.eval.tonemap import colorbar, display, false_color, to_uint8
 from mcdenoise.io.atomic import atomic_path, write_text_atomic
 
@@ -36,6 +41,10 @@ from mcdenoise.io.atomic import atomic_path, write_text_atomic
 CSV_HEAD = ("scene", "role", "method", "file", "input", "spp", "seconds", "device")
 #: Columns of results.csv after the metric columns.
 CSV_TAIL = ("relmse_ratio", "failed", "bad_pixels", "reason", "unavailable", "notes", "params")
+#: Columns of frames.csv (one row per frame of every sequence) before the metric columns.
+FRAMES_HEAD = ("scene", "role", "method", "sequence", "frame", "index", "warmup", "file", "seconds")
+#: Columns of frames.csv after the metric columns.
+FRAMES_TAIL = ("failed", "bad_pixels", "reason", "unavailable")
 
 #: Largest on-screen magnification of small crops (nearest neighbour).
 _MAX_ZOOM = 16
@@ -45,6 +54,16 @@ _ERROR_DECADES = 4
 _BOX_RGB = (0.1, 0.9, 0.2)
 #: Names of the images this module writes (``<scene index>_<scene>_...png``).
 _OWN_IMAGE = re.compile(r"^\d{2}_[A-Za-z0-9._-]+\.png$")
+
+HOW_TO_READ_SEQUENCES = (
+    "Sequences: each row is one method over the whole sequence. Per-frame metrics are means "
+    "over the frames after the warm-up; the temporal metrics judge frame differences "
+    "(o\u209c \u2212 o\u209c\u208b\u2081 against r\u209c \u2212 r\u209c\u208b\u2081): "
+    "lower temporal relMSE and tRMAE, higher tPSNR mean less flicker. The small line under a "
+    "value is the same metric over the warm-up frames, reported apart because a temporal "
+    "method has little history there. The per-frame table below shows every frame "
+    "(warm-up frames in grey)."
+)
 
 HOW_TO_READ = (
     "Each scene compares denoised outputs with a high-sample-count reference. Lower relMSE, "
@@ -84,9 +103,13 @@ def write_report(result: EvalResult, out_dir: str | os.PathLike[str]) -> dict[st
         "html": out / "report.html",
         "images": out / "images",
     }
+    if result.has_sequences:
+        paths["frames"] = out / "frames.csv"
     try:
         write_json(result, paths["json"])
         write_csv(result, paths["csv"])
+        if "frames" in paths:
+            write_frames_csv(result, paths["frames"])
         page = render_html(result, out)
         write_text_atomic(paths["html"], page)
         shown = {html.unescape(n) for n in re.findall(r'src="images/([^"/]+)"', page)}
@@ -141,6 +164,24 @@ def write_csv(result: EvalResult, path: str | os.PathLike[str]) -> None:
         row.append("; ".join(rec.notes) or None)
         row.append(rec.params)
         writer.writerow([_cell(v) for v in row])
+    write_text_atomic(path, buf.getvalue())
+
+
+def write_frames_csv(result: EvalResult, path: str | os.PathLike[str]) -> None:
+    """Write one row per frame of every evaluated sequence (its still metrics, and the
+    temporal metrics of the pair it closes; empty for the first frame), atomically."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow([*FRAMES_HEAD, *result.metrics, *FRAMES_TAIL])
+    for rec in result.records:
+        if rec.sequence is None:
+            continue
+        for f in rec.sequence.frames:
+            row = [rec.scene, rec.role, rec.method, rec.file, f.frame, f.index, f.warmup]
+            row += [f.file, f.seconds, *(f.metrics.get(m) for m in result.metrics)]
+            row += [f.failed, f.bad_pixels, f.reason]
+            row.append("; ".join(f"{k}: {v}" for k, v in f.unavailable.items()) or None)
+            writer.writerow([_cell(v) for v in row])
     write_text_atomic(path, buf.getvalue())
 
 
@@ -202,11 +243,11 @@ def _fmt(metric: str, value: float | None) -> str:
         return "\u221e" if value > 0 else "\u2212\u221e"
     if math.isnan(value):
         return "NaN"
-    if metric == "psnr":
+    if metric in ("psnr", "tpsnr"):
         return f"{value:.2f}"
     if metric in ("ssim", "flip"):
         return f"{value:.4f}"
-    if metric in METRICS and METRICS[metric].signed:
+    if metric in result_metric_names() and metric_spec(metric).signed:
         return percent(value)
     if value != 0 and (abs(value) < 1e-3 or abs(value) >= 1e5):
         return f"{value:.3e}"
@@ -235,8 +276,15 @@ def _best(
     return max(vals) if better == "higher" else min(vals)
 
 
+def result_metric_names() -> set[str]:
+    """Every registered metric name, still and temporal."""
+    from mcdenoise.eval.temporal import TEMPORAL_METRICS
+
+    return {*METRICS, *TEMPORAL_METRICS}
+
+
 def _direction(metric: str) -> str:
-    m = METRICS[metric]
+    m = metric_spec(metric)
     return "zero" if m.signed else ("higher" if m.higher_is_better else "lower")
 
 
@@ -244,10 +292,12 @@ def _table(result: EvalResult, scene: str, shown_metrics: list[str]) -> str:
     records = result.scene_records(scene)
     parts = {m: [p for p in PARTS.get(m, ()) if p in result.metrics] for m in shown_metrics}
     cols: list[tuple[str, str, Callable[[EvalRecord], float | None], str]] = [
-        (m, METRICS[m].label, (lambda r, m=m: r.metrics.get(m)), _direction(m))
+        (m, metric_spec(m).label, (lambda r, m=m: r.metrics.get(m)), _direction(m))
         for m in shown_metrics
     ]
-    cols.append(("seconds", "seconds", lambda r: r.seconds, "lower"))
+    per_frame = any(r.sequence is not None for r in records)
+    seconds = "seconds / frame" if per_frame else "seconds"
+    cols.append(("seconds", seconds, lambda r: r.seconds, "lower"))
     cols.append(("ratio", "relMSE \u00f7 noisy", lambda r: r.relmse_ratio, "lower"))
     best = {key: _best(records, get, hi) for key, _, get, hi in cols}
     head = "".join(f"<th>{_esc(label)}</th>" for _, label, _, _ in cols)
@@ -281,11 +331,57 @@ def _table(result: EvalResult, scene: str, shown_metrics: list[str]) -> str:
             ):
                 text = f'<b class="best">{text}</b>'
             text += _parts_line(rec, parts.get(key, []))
+            text += _warmup_line(rec, key)
             cells.append(f'<td class="num">{text}</td>')
         rows.append(f'<tr class="{cls}">{"".join(cells)}</tr>')
     return (
         '<table class="results"><thead><tr><th>method / file</th><th>input spp</th>'
         f"{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+    )
+
+
+def _warmup_line(rec: EvalRecord, metric: str) -> str:
+    """Under a sequence's value: the same metric over its warm-up frames."""
+    seq = rec.sequence
+    if seq is None or not seq.warmup or metric not in seq.warmup_metrics:
+        return ""
+    v = seq.warmup_metrics.get(metric)
+    text = "n/a" if v is None else _fmt(metric, v)
+    why = seq.warmup_unavailable.get(metric, "")
+    title = f' title="{_esc(why)}"' if why else ""
+    return f'<br><span class="small"{title}>warm-up: {_esc(text)}</span>'
+
+
+def _frames_table(result: EvalResult, scene: str) -> str:
+    """Per-frame relMSE and temporal relMSE (those evaluated; else the first still and the
+    first temporal metric) of every sequence of ``scene``; warm-up frames in grey."""
+    records = [r for r in result.scene_records(scene) if r.sequence is not None]
+    if not records:
+        return ""
+    still = [m for m in result.metrics if m in METRICS]
+    temporal = [m for m in result.metrics if m not in METRICS]
+    keys = [m for m in ("relmse", "trelmse") if m in result.metrics] or [*still[:1], *temporal[:1]]
+    head = "".join(
+        f"<th>{_esc(r.method)}<br>{_esc(metric_spec(m).label)}</th>" for r in records for m in keys
+    )
+    first = records[0].sequence
+    assert first is not None
+    rows = []
+    for i, fr in enumerate(first.frames):
+        cells = [f"<td>{_esc(fr.frame)}{' (warm-up)' if fr.warmup else ''}</td>"]
+        for r in records:
+            seq = r.sequence
+            f = seq.frames[i] if seq is not None and i < len(seq.frames) else None
+            for m in keys:
+                v = None if f is None else f.metrics.get(m)
+                cells.append(f'<td class="num">{_esc(_fmt(m, v))}</td>')
+        rows.append(f'<tr class="{"noisy" if fr.warmup else ""}">{"".join(cells)}</tr>')
+    return (
+        f'<h3>Per frame</h3><p class="small">Temporal values of a frame are those of the pair '
+        f"(previous frame, this frame); the first frame has none. Every metric of every frame "
+        f"is in frames.csv and results.json.</p>"
+        f'<table class="results"><thead><tr><th>frame</th>{head}</tr></thead>'
+        f"<tbody>{''.join(rows)}</tbody></table>"
     )
 
 
@@ -331,6 +427,10 @@ def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
         else:
             v = rec.metrics.get("relmse")
             detail = f"relMSE {_fmt('relmse', v)}" if v is not None else ""
+        if rec.sequence is not None and rec.sequence.frames:
+            last = rec.sequence.frames[-1]
+            v = last.metrics.get("relmse")
+            detail = f"{last.frame}" + (f": relMSE {_fmt('relmse', v)}" if v is not None else "")
         cls = ' class="failed"' if rec.failed else ""
         figures.append(
             f'<figure{cls}><img src="images/{_esc(img_name)}" {size} '
@@ -340,6 +440,8 @@ def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
         )
     ref_name = f"{prefix}_reference.png"
     bar_name = f"{prefix}_colorbar.png"
+    seq = next((r.sequence for r in records if r.sequence is not None and r.sequence.frames), None)
+    last_frame = f" / {seq.frames[-1].frame}" if seq is not None else ""
     write_png(images_dir / ref_name, display(ref, preview.exposure))
     write_png(images_dir / bar_name, colorbar(w * zoom, 12))
     ticks = "".join(
@@ -352,7 +454,7 @@ def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
         f'<img src="images/{_esc(bar_name)}" width="{w * zoom}" height="12" alt="colour scale">'
         f'<div class="ticks">{ticks}</div></div>'
         f"<figcaption><b>reference</b><br>{_esc(Path(result.references.get(scene, '')).name)}"
-        "</figcaption></figure>"
+        f"{_esc(last_frame)}</figcaption></figure>"
     )
     y0, x0, ch, cw = preview.window
     full_h, full_w = preview.full_shape
@@ -379,6 +481,8 @@ def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
         f"({math.log2(preview.exposure):+.2f} EV, chosen from the reference), clamped to [0, 1], "
         f"sRGB. Error maps share one log scale from {lo:.0e} to {hi:.0e}."
     )
+    if seq is not None:
+        where = f"Sequences: the last frame ({seq.frames[-1].frame}). " + where
     return (
         f'<p class="small">{_esc(where)} {_esc(exposure)}</p>'
         f'<div class="strip">{"".join(figures)}</div>'
@@ -391,9 +495,9 @@ def _header(result: EvalResult) -> str:
         for scene, path in result.references.items()
     )
     metric_rows = "".join(
-        f"<tr><th>{_esc(METRICS[m].label)}</th><td>{_esc(METRICS[m].definition)}</td>"
-        f"<td>{_esc(METRICS[m].space)}</td>"
-        f"<td>{METRICS[m].describe()['best']} is best</td></tr>"
+        f"<tr><th>{_esc(metric_spec(m).label)}</th><td>{_esc(metric_spec(m).definition)}</td>"
+        f"<td>{_esc(metric_spec(m).space)}</td>"
+        f"<td>{metric_spec(m).describe()['best']} is best</td></tr>"
         for m in result.metrics
     )
     flip_note = ""
@@ -414,13 +518,32 @@ def _header(result: EvalResult) -> str:
         if failed
         else ""
     )
+    howto = HOW_TO_READ
+    spaces = (
+        "relMSE, SMAPE and MSE on linear HDR RGB; PSNR and SSIM on sRGB clamped to [0,1] "
+        "(no exposure); FLIP and mean bias on linear HDR RGB."
+    )
+    sequences = ""
+    if result.has_sequences:
+        howto += " " + HOW_TO_READ_SEQUENCES
+        spaces += (
+            " Temporal relMSE on linear HDR RGB; tPSNR and tRMAE on Noisebase's 8-bit display "
+            "values (ACES, gamma 2.2, truncated to 8 bits), as Noisebase computes them."
+        )
+        w = result.warmup or 0
+        sequences = (
+            f"<tr><th>Sequences</th><td>Warm-up: the first {w} frame(s), reported apart. "
+            f"Per-frame metrics: mean over frames t \u2265 {w}; temporal metrics: mean over the "
+            f"frame pairs (t \u2212 1, t) with t \u2212 1 \u2265 {w} (both frames past the "
+            "warm-up, as Noisebase). The warm-up line under a value: frames t &lt; "
+            f"{w} and pairs ending at t \u2264 {w}. Seconds: mean per frame.</td></tr>"
+        )
     return (
-        f'<p class="howto"><b>How to read this:</b> {_esc(HOW_TO_READ)}</p>{status}'
+        f'<p class="howto"><b>How to read this:</b> {_esc(howto)}</p>{status}'
         '<table class="meta">'
         f"<tr><th>Reference{'s' if len(result.references) != 1 else ''}</th><td><ul>{refs}</ul>"
         "</td></tr>"
-        "<tr><th>Colour spaces</th><td>relMSE, SMAPE and MSE on linear HDR RGB; PSNR and SSIM "
-        "on sRGB clamped to [0,1] (no exposure); FLIP and mean bias on linear HDR RGB.</td></tr>"
+        f"<tr><th>Colour spaces</th><td>{_esc(spaces)}</td></tr>{sequences}"
         f"<tr><th>mcdenoise</th><td>version {_esc(result.version)}, evaluated "
         f"{_esc(result.created)}</td></tr></table>"
         '<h3>Metric definitions</h3><table class="meta">'
@@ -439,7 +562,7 @@ def render_html(result: EvalResult, out_dir: str | os.PathLike[str]) -> str:
         m
         for m in result.metrics
         if (m != "flip" or any(r.metrics.get(m) is not None for r in result.records))
-        and METRICS[m].part_of not in result.metrics
+        and metric_spec(m).part_of not in result.metrics
     ] or list(result.metrics)
     sections = [_header(result)]
     for index, scene in enumerate(result.scenes()):
@@ -447,6 +570,7 @@ def render_html(result: EvalResult, out_dir: str | os.PathLike[str]) -> str:
         notes = [f"{Path(r.file).name}: {n}" for r in records for n in r.notes]
         section = f'<h2 id="scene-{_esc(_slug(scene))}">Scene: {_esc(scene)}</h2>'
         section += _table(result, scene, shown)
+        section += _frames_table(result, scene)
         if notes:
             section += '<p class="notes">' + "<br>".join(_esc(n) for n in notes) + "</p>"
         section += _strip(result, scene, out, index)

@@ -4,6 +4,12 @@ An evaluation is a flat list of :class:`EvalRecord` (one per evaluated image: ea
 output and each noisy input, grouped by ``scene``), not a fixed table, so later experiments
 (error vs spp, equal time) can add records and fields without a new format.
 
+A sequence (a folder of frames, see :func:`mcdenoise.eval.evaluate.evaluate`) is one record per
+method too: its ``metrics`` are the headline values of
+:class:`mcdenoise.eval.temporal.SequenceValues` (frames past the warm-up), and its ``sequence``
+(:class:`SequenceDetail`) holds the warm-up values, the values over all frames and one
+:class:`FrameRecord` per frame.
+
 JSON has no infinity and no NaN: :func:`jsonable` writes ``+inf`` as the string ``"inf"``
 (``-inf`` as ``"-inf"``, NaN as ``"nan"``); missing values are ``null``. The same strings are
 used in CSV cells (missing values are empty cells). PSNR of an output identical to its
@@ -29,6 +35,86 @@ ROLE_NOISY = "noisy"
 
 
 @dataclass
+class FrameRecord:
+    """One frame of an evaluated sequence.
+
+    Attributes:
+        frame: the reference frame's stem (``frame_0003``).
+        index: position in the sequence (0 = first).
+        file: the evaluated file of this frame.
+        warmup: one of the warm-up frames, reported apart.
+        seconds: denoise wall time of this frame (``mcdenoise:seconds``), when known.
+        metrics: still metrics of this frame and, from the second frame on, temporal metrics of
+            the pair (previous frame, this frame); ``None`` where not computed.
+        unavailable, failed, reason, bad_pixels: as in :class:`EvalRecord`.
+    """
+
+    frame: str
+    index: int
+    file: str
+    warmup: bool = False
+    seconds: float | None = None
+    metrics: dict[str, float | None] = field(default_factory=dict)
+    unavailable: dict[str, str] = field(default_factory=dict)
+    failed: bool = False
+    reason: str | None = None
+    bad_pixels: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dict."""
+        return jsonable(
+            {
+                "frame": self.frame,
+                "index": self.index,
+                "file": self.file,
+                "warmup": self.warmup,
+                "seconds": self.seconds,
+                "metrics": self.metrics,
+                "unavailable": self.unavailable,
+                "failed": self.failed,
+                "reason": self.reason,
+                "bad_pixels": self.bad_pixels,
+            }
+        )
+
+
+@dataclass
+class SequenceDetail:
+    """What an evaluated sequence adds to its record (see :mod:`mcdenoise.eval.temporal`).
+
+    Attributes:
+        warmup: number of first frames reported apart.
+        frames: one :class:`FrameRecord` per frame, in order.
+        warmup_metrics, warmup_unavailable: still metrics averaged over the warm-up frames,
+            temporal ones over the pairs ending in frames 1 .. warmup.
+        all_metrics, all_unavailable: averaged over every frame and every pair.
+    """
+
+    warmup: int
+    frames: list[FrameRecord] = field(default_factory=list)
+    warmup_metrics: dict[str, float | None] = field(default_factory=dict)
+    warmup_unavailable: dict[str, str] = field(default_factory=dict)
+    all_metrics: dict[str, float | None] = field(default_factory=dict)
+    all_unavailable: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dict."""
+        return jsonable(
+            {
+                "frame_count": len(self.frames),
+                "warmup": self.warmup,
+                "first": self.frames[0].frame if self.frames else None,
+                "last": self.frames[-1].frame if self.frames else None,
+                "warmup_metrics": self.warmup_metrics,
+                "warmup_unavailable": self.warmup_unavailable,
+                "all_metrics": self.all_metrics,
+                "all_unavailable": self.all_unavailable,
+                "frames": [f.to_dict() for f in self.frames],
+            }
+        )
+
+
+@dataclass
 class EvalRecord:
     """One evaluated image of one scene.
 
@@ -49,6 +135,9 @@ class EvalRecord:
         reason: one line explaining the failure.
         bad_pixels: number of pixels with a non-finite channel.
         notes: other remarks for the reader (e.g. noisy input named but not found).
+        sequence: for a sequence (a folder of frames), its warm-up values, values over all
+            frames and per-frame values; then ``metrics`` are the values past the warm-up,
+            ``seconds`` the mean per frame and ``file`` the folder. ``None`` for a still.
     """
 
     scene: str
@@ -67,9 +156,11 @@ class EvalRecord:
     reason: str | None = None
     bad_pixels: int = 0
     notes: list[str] = field(default_factory=list)
+    sequence: SequenceDetail | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-safe dict (see :func:`jsonable` for inf/NaN)."""
+        """JSON-safe dict (see :func:`jsonable` for inf/NaN); ``sequence`` only for sequences."""
+        extra = {} if self.sequence is None else {"sequence": self.sequence.to_dict()}
         return jsonable(
             {
                 "scene": self.scene,
@@ -88,6 +179,7 @@ class EvalRecord:
                 "reason": self.reason,
                 "bad_pixels": self.bad_pixels,
                 "notes": self.notes,
+                **extra,
             }
         )
 
@@ -128,6 +220,8 @@ class EvalResult:
         previews: scene -> :class:`ScenePreview` (not written to JSON).
         version: mcdenoise version that computed the numbers.
         created: ISO 8601 time of the evaluation.
+        warmup: for an evaluation of sequences, the number of warm-up frames reported apart;
+            ``None`` for stills.
     """
 
     records: list[EvalRecord] = field(default_factory=list)
@@ -136,6 +230,7 @@ class EvalResult:
     previews: dict[str, ScenePreview] = field(default_factory=dict)
     version: str = ""
     created: str = ""
+    warmup: int | None = None
 
     def scenes(self) -> list[str]:
         """Scene names in first-seen order."""
@@ -150,18 +245,31 @@ class EvalResult:
         """True when at least one record failed."""
         return any(r.failed for r in self.records)
 
+    @property
+    def has_sequences(self) -> bool:
+        """True when the records are sequences (folders of frames)."""
+        return any(r.sequence is not None for r in self.records)
+
     def format_table(self) -> str:
-        """A plain-text summary table (one line per record) for terminals and logs."""
-        from mcdenoise.eval.metrics import METRICS
+        """A plain-text summary table (one line per record) for terminals and logs; for
+        sequences the values past the warm-up (see :meth:`format_frames`)."""
+        from mcdenoise.eval.temporal import metric_spec
 
         # the parts of a summary metric (bias R, G, B) stay in the JSON and CSV
         shown = [
             m
             for m in self.metrics
             if any(r.metrics.get(m) is not None for r in self.records)
-            and METRICS[m].part_of not in self.metrics
+            and metric_spec(m).part_of not in self.metrics
         ]
-        head = ["scene", "method", "spp", *(METRICS[m].label for m in shown), "vs noisy", "status"]
+        head = [
+            "scene",
+            "method",
+            "spp",
+            *(metric_spec(m).label for m in shown),
+            "vs noisy",
+            "status",
+        ]
         rows = [head]
         # two outputs of one method (e.g. two trained models) are told apart by their file
         shared = Counter((r.scene, r.method, r.spp) for r in self.records)
@@ -170,20 +278,64 @@ class EvalResult:
             if shared[(r.scene, r.method, r.spp)] > 1:
                 name += f" [{Path(r.file).name}]"
             cells = [r.scene, name, "" if r.spp is None else str(r.spp)]
-            cells += [_short(r.metrics.get(m), signed=METRICS[m].signed) for m in shown]
+            cells += [_short(r.metrics.get(m), signed=metric_spec(m).signed) for m in shown]
             cells.append("" if r.relmse_ratio is None else f"{r.relmse_ratio:.3g}x")
             cells.append(f"FAILED: {r.reason}" if r.failed else "ok")
             rows.append(cells)
-        widths = [max(len(row[i]) for row in rows) for i in range(len(head) - 1)]
-        lines = [
-            "  ".join(c.ljust(w) for c, w in zip(row[:-1], widths)) + "  " + row[-1] for row in rows
-        ]
-        return "\n".join(lines)
+        text = _align(rows)
+        if self.warmup is not None and self.has_sequences:
+            text += (
+                f"\n(sequences: mean over the frames after the first {self.warmup} (warm-up); "
+                "temporal metrics over the pairs of frames both past it)"
+            )
+        return text
+
+    def format_frames(self, metrics: tuple[str, ...] = ("relmse", "trelmse")) -> str:
+        """Per-frame values of every sequence: one line per frame, per record the columns
+        ``metrics`` (those evaluated); warm-up frames are marked ``*``. Empty without
+        sequences."""
+        from mcdenoise.eval.temporal import metric_spec
+
+        keys = [m for m in metrics if m in self.metrics]
+        blocks = []
+        for scene in self.scenes():
+            recs = [r for r in self.scene_records(scene) if r.sequence is not None]
+            if not recs or not keys:
+                continue
+            head = ["frame"] + [f"{r.method} {metric_spec(m).label}" for r in recs for m in keys]
+            rows = [head]
+            first = recs[0].sequence
+            assert first is not None
+            for i, fr in enumerate(first.frames):
+                cells = [fr.frame + (" *" if fr.warmup else "")]
+                for r in recs:
+                    seq = r.sequence
+                    assert seq is not None
+                    f = seq.frames[i] if i < len(seq.frames) else None
+                    for m in keys:
+                        v = None if f is None else f.metrics.get(m)
+                        cells.append(_short(v, signed=metric_spec(m).signed))
+                rows.append(cells)
+            blocks.append(f"{scene}: per frame (* = warm-up)\n" + _align(rows, last_free=False))
+        return "\n\n".join(blocks)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-safe dict: schema, version, metric definitions, references and records."""
-        from mcdenoise.eval.metrics import METRICS
+        """JSON-safe dict: schema, version, metric definitions, references and records
+        (and, for sequences, how the warm-up is reported)."""
+        from mcdenoise.eval.temporal import metric_spec
 
+        extra = {}
+        if self.warmup is not None and self.has_sequences:
+            extra["sequences"] = {
+                "warmup": self.warmup,
+                "how": (
+                    "metrics: still metrics averaged over the frames t >= warmup, temporal "
+                    "metrics over the frame pairs (t-1, t) with t-1 >= warmup; "
+                    "sequence.warmup_metrics: frames t < warmup and pairs 1 <= t <= warmup; "
+                    "sequence.all_metrics: every frame and every pair t >= 1; "
+                    "sequence.frames[t].metrics: frame t, temporal ones for the pair (t-1, t)"
+                ),
+            }
         return jsonable(
             {
                 "schema": SCHEMA,
@@ -193,11 +345,23 @@ class EvalResult:
                     'Non-finite numbers are strings: "inf", "-inf", "nan" (PSNR of an output '
                     'identical to its reference is "inf"); missing values are null.'
                 ),
-                "metrics": {name: METRICS[name].describe() for name in self.metrics},
+                "metrics": {name: metric_spec(name).describe() for name in self.metrics},
+                **extra,
                 "references": self.references,
                 "records": [r.to_dict() for r in self.records],
             }
         )
+
+
+def _align(rows: list[list[str]], *, last_free: bool = True) -> str:
+    """Rows of cells as left-aligned columns (the last column unpadded when ``last_free``)."""
+    n = len(rows[0]) - (1 if last_free else 0)
+    widths = [max(len(row[i]) for row in rows) for i in range(n)]
+    lines = []
+    for row in rows:
+        line = "  ".join(c.ljust(w) for c, w in zip(row[:n], widths))
+        lines.append((line + "  " + row[-1]) if last_free else line.rstrip())
+    return "\n".join(lines)
 
 
 def _short(value: float | None, *, signed: bool = False) -> str:
