@@ -18,6 +18,10 @@ nlm                variance-normalised non-local means with feature weights    2
 cross-bilateral    cross-bilateral filter with Kalantari 2015 terms, fixed     10
                    default bandwidths (alias ``xbf``;
                    :mod:`~mcdenoise.methods.cross_bilateral`)
+svgf               temporal: spatiotemporal variance-guided filtering          5
+                   (Schied 2017; Falcor's SVGFPass) over a sequence with
+                   motion vectors; a frame without motion is a cut, so a
+                   still gets the first-frame filter (:mod:`~mcdenoise.methods.svgf`)
 oidn               Intel Open Image Denoise (pyoidn), colour + albedo +        0
                    normal; a peer to compare with, never the default
                    (:mod:`~mcdenoise.methods.oidn`)
@@ -51,7 +55,7 @@ measurements behind this order are in ``docs/results/methods-notes.md``.
 from __future__ import annotations
 
 from mcdenoise.method import Method
-from mcdenoise.methods import cross_bilateral, kalantari, kpcn, nlm, oidn
+from mcdenoise.methods import cross_bilateral, kalantari, kpcn, nlm, oidn, svgf
 
 
 def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
@@ -63,6 +67,7 @@ def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
         (kalantari.NLM, ()),
         (kpcn.METHOD, ()),
         (oidn.METHOD, ()),
+        (svgf.METHOD, ()),
     ]
 
 

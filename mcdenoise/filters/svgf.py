@@ -1,0 +1,738 @@
+"""Spatiotemporal variance-guided filtering (SVGF; Schied et al. 2017), vectorised torch.
+
+The reference is Falcor's ``SVGFPass`` (``Source/RenderPasses/SVGFPass``: ``SVGFReproject``,
+``SVGFFilterMoments``, ``SVGFAtrous``, ``SVGFCommon``, ``SVGFFinalModulate`` shaders); each
+step below names the shader it follows. Per frame:
+
+1. **Demodulate** the colour by the albedo (``SVGFReproject``: ``demodulate``), giving the
+   *illumination* that is filtered, so texture never has to survive the filter.
+2. **Reproject** the history of frame ``t - 1`` (``loadPrevData``): bilinear taps at
+   ``p + motion`` (:mod:`mcdenoise.filters.warp`), each tap kept only when it is on the film,
+   the pixel's ``motion_valid`` is 1 and it passes the consistency tests of
+   ``isReprjValid``: ``|z_prev − z| / (fwidth(z) + ε_z) <= 10`` and
+   ``|n − n_prev| / (fwidth(n) + 0.01) <= 16``; the weights of the kept taps are
+   renormalised and at least 0.01 of them must remain. Where no bilinear tap survives but the
+   motion is trusted, Falcor's fallback averages the taps of the 3×3 block around the nearest
+   previous pixel that pass the same tests.
+3. **Accumulate** (``SVGFReproject``: ``main``): history length
+   ``n = min(32, n_prev + 1)`` (1 without history); exponential moving averages with
+   ``α = max(0.05, 1/n)`` for the illumination and ``max(0.2, 1/n)`` for the first two
+   moments of its luminance; variance ``max(0, m2 − m1²)``.
+4. **Spatial variance while the history is short** (``SVGFFilterMoments``): where ``n < 4``, a
+   7×7 cross-bilateral filter (luminance φ = ``phi_color``, depth φ = ``3·fwidth(z)·|o|``,
+   normal power ``phi_normal``) of the illumination and the moments replaces them, with
+   variance ``(m2 − m1²) · 4 / n``.
+5. **À-trous wavelet filter** (``SVGFAtrous``): ``iterations`` (5, the paper's) levels of the
+   5×5 B3-spline kernel ``(1, 2/3, 1/6)`` with step ``2^i``; weights
+   ``exp(−|l_p − l_q| / (phi_color·sqrt(g3×3(var)_p + 1e-10)) − |z_p − z_q| /
+   (fwidth(z)_p · step · |o|)) · max(0, n_p·n_q)^phi_normal`` (``computeWeight``), the centre
+   with weight 1, the variance filtered with the squared weights, the luminance φ from the
+   variance prefiltered by a 3×3 Gaussian (``computeVarianceCenter``).
+   The output of level ``feedback_tap`` (0: the first, as in the paper; Falcor's default
+   is 1 of 4) becomes the history illumination of the next frame.
+6. **Remodulate** by the albedo (``SVGFFinalModulate``).
+
+Pixels where the camera ray escaped (``depth == 0``, the buffers' convention for the
+background) are accumulated over time like any other (Falcor: an environment map keeps a
+valid history) but not filtered spatially (Falcor: ``zCenter.x < 0`` returns the centre).
+
+Deviations from Falcor, all because the input is offline CPU data read from files:
+
+* ``fwidth`` of depth and normal comes from finite differences of the buffers, not from the
+  rasteriser's derivatives: per axis the smaller of the forward and backward absolute
+  difference (so a pixel next to a silhouette takes its surface's own slope, not the jump;
+  a background neighbour does not count), summed over x and y (``fwidth = |ddx| + |ddy|``);
+  for the normal the length of that vector.
+* The depth buffer is a distance in scene units of any scale, not metres: the depth test's
+  floor is relative, ``ε_z = 0.01 · z`` (Falcor: an absolute ``1e-2``). The à-trous and
+  moment filters' depth weights are ratios and need no change.
+* No mesh ids and no emission buffer (Falcor's inputs have no ids either; the emission is
+  not demodulated there). Demodulation is the project's ``color / (albedo + 0.01)``
+  (:mod:`mcdenoise.filters.albedo`) instead of Falcor's ``color / max(albedo, 0.001)``.
+* Normals are renormalised (pixel-averaged normals of a path tracer are shorter than 1 on
+  edges; Falcor's octahedral packing normalises too); a zero normal (background) gives
+  normal weight 0 against any other pixel.
+* The history length is interpolated with the same taps as the history (Falcor reads it at
+  the nearest pixel: "crude, fixme"). The screen-bounds test on that nearest previous pixel
+  accepts the whole film (Falcor's also drops its first row and column), and a bilinear tap
+  off the film is dropped (Falcor reads it as zeros, which its depth test then rejects).
+* The moment filter gives the centre pixel weight 1 explicitly (Falcor's loop gives it
+  ``(n·n)^128``, which is 1 for a unit normal), and the 3×3 variance blur renormalises over
+  the taps on the film (Falcor reads 0 outside).
+* Luminances are clamped at 1e15 so that their squares, the second moments, stay finite in
+  float32.
+* Inputs without depth or normals drop that weight (and that reprojection test); without
+  albedo the colour is filtered as it is.
+
+Everything is shaped ``(B, C, H, W)``; on the CPU the row bands of each pass are shared by
+:func:`~mcdenoise.filters.parallel.parallel_map`'s workers (results do not depend on the
+thread count). Not differentiable by design (no ``torch.no_grad`` here, but the method runs
+without autograd).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+from mcdenoise.errors import InputError
+from mcdenoise.filters.albedo import ALBEDO_EPS, demodulate
+from mcdenoise.filters.parallel import parallel_map
+from mcdenoise.filters.warp import MIN_WEIGHT, TAP_OFFSETS, bilinear_taps, gather_flat, warp
+
+#: Rec. 709 luminance weights (Falcor's ``luminance()``).
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+#: 1-D B3-spline weights of the 5×5 à-trous kernel for |offset| = 0, 1, 2 (``SVGFAtrous``).
+ATROUS_WEIGHTS = (1.0, 2.0 / 3.0, 1.0 / 6.0)
+#: 3×3 Gaussian of the variance prefilter for |dx|, |dy| in {0, 1} (``computeVarianceCenter``).
+VARIANCE_BLUR = ((1.0 / 4.0, 1.0 / 8.0), (1.0 / 8.0, 1.0 / 16.0))
+#: Luminances are clamped here so that their squares stay finite in float32.
+MAX_LUMINANCE = 1e15
+
+
+@dataclass(frozen=True)
+class SvgfSettings:
+    """Parameters of :class:`Svgf` (defaults: Falcor's ``SVGFPass`` and the paper).
+
+    Attributes:
+        alpha: minimum EMA weight of the new illumination (Falcor ``mAlpha`` 0.05).
+        moments_alpha: minimum EMA weight of the new moments (``mMomentsAlpha`` 0.2).
+        max_history: cap of the history length (32 in ``SVGFReproject``).
+        spatial_history: below this history length the variance is estimated spatially
+            (4 in ``SVGFFilterMoments``).
+        spatial_radius: radius of that spatial estimate (3: 7×7).
+        iterations: à-trous levels (5 in the paper; Falcor's default is 4).
+        feedback_tap: the level whose output is the next frame's history (0 in the paper,
+            Falcor's default 1; -1: the unfiltered accumulated illumination).
+        phi_color: luminance edge-stopping, in standard deviations (``mPhiColor`` 10).
+        phi_normal: normal edge-stopping power (``mPhiNormal`` 128).
+        depth_test: reprojection depth tolerance, in fwidths (10 in ``isReprjValid``).
+        normal_test: reprojection normal tolerance, in fwidths (16 in ``isReprjValid``).
+        depth_floor: relative floor of the depth test's fwidth (see the module doc).
+        demodulate: divide by ``albedo + albedo_eps`` before filtering (when an albedo is given).
+        albedo_eps: the demodulation offset.
+    """
+
+    alpha: float = 0.05
+    moments_alpha: float = 0.2
+    max_history: float = 32.0
+    spatial_history: float = 4.0
+    spatial_radius: int = 3
+    iterations: int = 5
+    feedback_tap: int = 0
+    phi_color: float = 10.0
+    phi_normal: float = 128.0
+    depth_test: float = 10.0
+    normal_test: float = 16.0
+    depth_floor: float = 0.01
+    demodulate: bool = True
+    albedo_eps: float = ALBEDO_EPS
+
+    def checked(self) -> SvgfSettings:
+        """``self`` when every value is in range, else :class:`InputError` (one line)."""
+        for name in ("alpha", "moments_alpha"):
+            v = getattr(self, name)
+            if not 0.0 < v <= 1.0:
+                raise InputError(f"svgf: {name} must be in (0, 1], got {v}")
+        positive = ("max_history", "phi_color", "phi_normal", "depth_test", "normal_test")
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"svgf: {name} must be a positive number, got {v}")
+        for name in ("spatial_history", "depth_floor", "albedo_eps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"svgf: {name} must be >= 0, got {v}")
+        if not 0 <= self.iterations <= 12:
+            raise InputError(f"svgf: iterations must be in 0..12, got {self.iterations}")
+        if not 0 <= self.spatial_radius <= 8:
+            raise InputError(f"svgf: spatial_radius must be in 0..8, got {self.spatial_radius}")
+        if self.feedback_tap < -1:
+            raise InputError(f"svgf: feedback_tap must be >= -1, got {self.feedback_tap}")
+        return self
+
+
+# --------------------------------------------------------------------------------------------
+# Guides: depth, normal and their screen-space derivatives
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Guides:
+    """The geometry of one frame, prepared for the edge-stopping functions.
+
+    Attributes:
+        depth: ``(B, 1, H, W)`` distance to the first hit (0: background), or ``None``.
+        depth_fwidth: ``(B, 1, H, W)`` its screen-space derivative ``|ddx| + |ddy|``.
+        normal: ``(B, 3, H, W)`` unit normals (0: background), or ``None``.
+        normal_fwidth: ``(B, 1, H, W)`` length of the normal's ``|ddx| + |ddy|``.
+        hit: ``(B, 1, H, W)`` bool, a surface was hit (``depth > 0``; all true without depth).
+    """
+
+    depth: Tensor | None
+    depth_fwidth: Tensor | None
+    normal: Tensor | None
+    normal_fwidth: Tensor | None
+    hit: Tensor
+
+
+def _one_sided(x: Tensor, dim: int, usable: Tensor) -> Tensor:
+    """Per pixel, the smaller absolute difference to the previous and the next pixel along
+    ``dim`` where both pixels are ``usable`` (``inf`` where neither side is)."""
+    n = x.shape[dim]
+    inf = torch.full_like(x, math.inf)
+    if n < 2:
+        return inf.amin(dim=1, keepdim=True)
+    d = (x.narrow(dim, 1, n - 1) - x.narrow(dim, 0, n - 1)).abs().amax(dim=1, keepdim=True)
+    ok = usable.narrow(dim, 1, n - 1) & usable.narrow(dim, 0, n - 1)
+    d = torch.where(ok, d, torch.full_like(d, math.inf))
+    pad = torch.full_like(d.narrow(dim, 0, 1), math.inf)
+    forward = torch.cat([d, pad], dim)
+    backward = torch.cat([pad, d], dim)
+    return torch.minimum(forward, backward)
+
+
+def _fwidth(x: Tensor, usable: Tensor) -> Tensor:
+    """``|ddx| + |ddy|`` from one-sided differences (see the module doc); 0 where a pixel
+    has no usable neighbour along an axis."""
+    total = torch.zeros_like(x[:, :1])
+    for dim in (2, 3):
+        d = _one_sided(x, dim, usable)
+        total = total + torch.where(torch.isfinite(d), d, torch.zeros_like(d))
+    return total
+
+
+def _normal_fwidth(n: Tensor, usable: Tensor) -> Tensor:
+    """Length of the per-component ``|ddx| + |ddy|`` of the normal (Falcor:
+    ``length(fwidth(normal))``)."""
+    comps = []
+    for c in range(n.shape[1]):
+        comps.append(_fwidth(n[:, c : c + 1], usable))
+    return torch.cat(comps, 1).square().sum(1, keepdim=True).sqrt()
+
+
+def make_guides(depth: Tensor | None, normal: Tensor | None, like: Tensor) -> Guides:
+    """:class:`Guides` of a frame whose colour is ``like`` ``(B, 3, H, W)``."""
+    b, _, h, w = like.shape
+    hit = (
+        depth > 0
+        if depth is not None
+        else torch.ones(b, 1, h, w, dtype=torch.bool, device=like.device)
+    )
+    z = zf = n = nf = None
+    if depth is not None:
+        z = depth.to(like.dtype).clamp_min(0.0)
+        zf = _fwidth(z, hit)
+    if normal is not None:
+        raw = normal.to(like.dtype)
+        length = raw.square().sum(1, keepdim=True).sqrt()
+        n = torch.where(length > 1e-8, raw / length.clamp_min(1e-8), torch.zeros_like(raw))
+        nf = _normal_fwidth(n, hit)
+    return Guides(z, zf, n, nf, hit)
+
+
+def luminance(x: Tensor) -> Tensor:
+    """Rec. 709 luminance ``(B, 1, H, W)`` of ``(B, 3, H, W)`` linear RGB."""
+    r, g, b = LUMINANCE
+    return r * x[:, 0:1] + g * x[:, 1:2] + b * x[:, 2:3]
+
+
+# --------------------------------------------------------------------------------------------
+# History
+# --------------------------------------------------------------------------------------------
+@dataclass
+class History:
+    """What frame ``t`` leaves to frame ``t + 1`` (all ``(B, C, H, W)``).
+
+    Attributes:
+        illumination: the feedback illumination (3 channels).
+        moments: the accumulated luminance moments ``(m1, m2)``.
+        length: the history length (1 channel).
+        guides: the frame's :class:`Guides` (for the consistency tests).
+    """
+
+    illumination: Tensor
+    moments: Tensor
+    length: Tensor
+    guides: Guides
+
+
+def _tap_tests(
+    g: Guides, prev: Guides, gathered: Callable[[Tensor], Tensor], s: SvgfSettings
+) -> Tensor | None:
+    """``isReprjValid`` for one set of taps: bool ``(B, 1, H, W)``, or ``None`` when there
+    is nothing to test. ``gathered(t)`` reads a previous-frame tensor at the taps."""
+    ok: Tensor | None = None
+    if g.depth is not None and prev.depth is not None:
+        assert g.depth_fwidth is not None
+        zp = gathered(prev.depth)
+        bg, bgp = g.depth <= 0, zp <= 0
+        tol = s.depth_test * (g.depth_fwidth + s.depth_floor * g.depth)
+        close = (zp - g.depth).abs() <= tol
+        ok = (bg & bgp) | (~bg & ~bgp & close)
+    if g.normal is not None and prev.normal is not None:
+        assert g.normal_fwidth is not None
+        npv = gathered(prev.normal)
+        dist = (g.normal - npv).square().sum(1, keepdim=True).sqrt()
+        near = dist <= s.normal_test * (g.normal_fwidth + 1e-2)
+        ok = near if ok is None else ok & near
+    return ok
+
+
+def reproject(
+    history: History,
+    g: Guides,
+    motion: Tensor,
+    motion_valid: Tensor | None,
+    s: SvgfSettings,
+) -> tuple[Tensor, Tensor]:
+    """The history of frame ``t - 1`` brought to frame ``t`` (``loadPrevData``).
+
+    Returns:
+        ``(values, ok)``: ``(B, 6, H, W)`` illumination (3), moments (2) and history length
+        (1), 0 where there is none, and the ``(B, 1, H, W)`` bool mask of pixels with a
+        history.
+    """
+    prev = history.guides
+    packed = torch.cat([history.illumination, history.moments, history.length], 1)
+    taps = bilinear_taps(motion, packed.dtype)
+    tests = []
+    for k in range(len(TAP_OFFSETS)):
+        t = _tap_tests(g, prev, lambda x, k=k: gather_flat(x, taps.index[:, k]), s)
+        tests.append(t)
+    tap_valid = None if tests[0] is None else torch.cat(tests, 1)  # type: ignore[arg-type]
+    # Falcor tests the screen bounds on the nearest previous pixel (``iposPrev``), for the
+    # bilinear taps and the fallback alike: a pixel that comes from off the film has no history.
+    trusted = _nearest_on_film(motion)
+    if motion_valid is not None:
+        trusted = trusted & (motion_valid > 0.5)
+    values, mask = warp(
+        packed,
+        motion,
+        valid=trusted.to(packed.dtype),
+        tap_valid=tap_valid,
+        taps=taps,
+        min_weight=MIN_WEIGHT,
+    )
+    ok = mask > 0.5
+    need = trusted & ~ok
+    if bool(need.any()):
+        values, ok = _fallback(values, ok, need, packed, g, prev, motion, s)
+    return values, ok
+
+
+def _nearest_on_film(motion: Tensor) -> Tensor:
+    """``(B, 1, H, W)`` bool: the nearest previous pixel ``floor(p + motion + 0.5)`` is on the
+    film (and the motion finite)."""
+    _, _, h, w = motion.shape
+    xs = torch.arange(w, dtype=motion.dtype, device=motion.device).view(1, 1, w)
+    ys = torch.arange(h, dtype=motion.dtype, device=motion.device).view(1, h, 1)
+    qx = torch.floor(xs + motion[:, 0] + 0.5)
+    qy = torch.floor(ys + motion[:, 1] + 0.5)
+    inside = (qx >= 0) & (qx <= w - 1) & (qy >= 0) & (qy <= h - 1)  # False for NaN
+    return inside.unsqueeze(1)
+
+
+def _fallback(
+    values: Tensor,
+    ok: Tensor,
+    need: Tensor,
+    packed: Tensor,
+    g: Guides,
+    prev: Guides,
+    motion: Tensor,
+    s: SvgfSettings,
+) -> tuple[Tensor, Tensor]:
+    """Falcor's fallback where the motion is trusted but no bilinear tap passed: the mean of
+    the taps of the 3×3 block around the nearest previous pixel that pass the tests. Only
+    the pixels in ``need`` are computed (a flat list)."""
+    b, c, h, w = packed.shape
+    flat = need.reshape(b, h * w)
+    bi, pi = flat.nonzero(as_tuple=True)
+    py, px = pi // w, pi % w
+    m = motion.reshape(b, 2, h * w)[bi, :, pi].to(packed.dtype)  # (N, 2)
+    qx = torch.floor(px.to(packed.dtype) + m[:, 0] + 0.5).clamp(-4, w + 4).long()
+    qy = torch.floor(py.to(packed.dtype) + m[:, 1] + 0.5).clamp(-4, h + 4).long()
+
+    def at(t: Tensor, bb: Tensor, yy: Tensor, xx: Tensor) -> Tensor:  # (N, C)
+        return t[bb, :, yy, xx]
+
+    def cur(t: Tensor | None) -> Tensor | None:
+        return None if t is None else at(t, bi, py, px)
+
+    total = torch.zeros(bi.shape[0], c, dtype=packed.dtype, device=packed.device)
+    count = torch.zeros(bi.shape[0], 1, dtype=packed.dtype, device=packed.device)
+    z, zf, n, nf = cur(g.depth), cur(g.depth_fwidth), cur(g.normal), cur(g.normal_fwidth)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            ty, tx = qy + dy, qx + dx
+            inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
+            cy, cx = ty.clamp(0, h - 1), tx.clamp(0, w - 1)
+            good = inside
+            if z is not None and prev.depth is not None and zf is not None:
+                zp = at(prev.depth, bi, cy, cx)[:, 0]
+                zc = z[:, 0]
+                bg, bgp = zc <= 0, zp <= 0
+                tol = s.depth_test * (zf[:, 0] + s.depth_floor * zc)
+                good = good & ((bg & bgp) | (~bg & ~bgp & ((zp - zc).abs() <= tol)))
+            if n is not None and prev.normal is not None and nf is not None:
+                npv = at(prev.normal, bi, cy, cx)
+                dist = (n - npv).square().sum(1).sqrt()
+                good = good & (dist <= s.normal_test * (nf[:, 0] + 1e-2))
+            v = at(packed, bi, cy, cx)
+            total = total + torch.where(good[:, None], v, torch.zeros_like(v))
+            count = count + good[:, None].to(packed.dtype)
+    found = count[:, 0] > 0
+    avg = total / count.clamp_min(1.0)
+    values = values.clone()
+    ok = ok.clone()
+    sel_b, sel_p = bi[found], pi[found]
+    vflat = values.reshape(b, c, h * w)
+    vflat[sel_b, :, sel_p] = avg[found]
+    ok.reshape(b, h * w)[sel_b, sel_p] = True
+    return values, ok
+
+
+def accumulate(
+    illumination: Tensor, reprojected: Tensor, ok: Tensor, s: SvgfSettings
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Temporal integration (``SVGFReproject``: ``main``).
+
+    Returns ``(illumination, moments, variance, length)`` of the frame: the EMA'd
+    illumination ``(B, 3, H, W)``, moments ``(B, 2, H, W)``, variance and history length
+    ``(B, 1, H, W)``.
+    """
+    prev_illum, prev_m, prev_len = reprojected[:, :3], reprojected[:, 3:5], reprojected[:, 5:6]
+    length = torch.where(ok, (prev_len + 1.0).clamp_max(s.max_history), torch.ones_like(prev_len))
+    inv = 1.0 / length
+    one = torch.ones_like(length)
+    alpha = torch.where(ok, inv.clamp_min(s.alpha), one)
+    alpha_m = torch.where(ok, inv.clamp_min(s.moments_alpha), one)
+    lum = luminance(illumination).clamp(0.0, MAX_LUMINANCE)
+    cur_m = torch.cat([lum, lum.square()], 1)
+    moments = prev_m + alpha_m * (cur_m - prev_m)
+    variance = (moments[:, 1:2] - moments[:, 0:1].square()).clamp_min(0.0)
+    illum = prev_illum + alpha * (illumination - prev_illum)
+    return illum, moments, variance, length
+
+
+# --------------------------------------------------------------------------------------------
+# Spatial passes (tiles, shared by parallel_map's workers)
+# --------------------------------------------------------------------------------------------
+Tile = tuple[int, int, int, int]  # y0, y1, x0, x1 (output pixels, half-open)
+
+
+def _bands(h: int, w: int, halo: int) -> list[Tile]:
+    """Full-width row bands of about 96 rows (fastest per pixel on one thread at 1024 columns
+    among 16..128), at least ``2·halo`` (so the rows read around a band do not dominate)."""
+    rows = max(96, 2 * halo)
+    return [(y, min(h, y + rows), 0, w) for y in range(0, h, rows)]
+
+
+def _tiles(h: int, w: int, size: int = 64) -> list[Tile]:
+    return [
+        (y, min(h, y + size), x, min(w, x + size))
+        for y in range(0, h, size)
+        for x in range(0, w, size)
+    ]
+
+
+def _window(tile: Tile, h: int, w: int, oy: int, ox: int) -> tuple[slice, slice] | None:
+    """Rows and columns of the centres ``c`` in ``tile`` whose neighbour ``c + o`` is on the
+    film (``None`` if there are none)."""
+    y0, y1, x0, x1 = tile
+    a, b = max(y0, -oy), min(y1, h - oy)
+    c, d = max(x0, -ox), min(x1, w - ox)
+    if a >= b or c >= d:
+        return None
+    return slice(a, b), slice(c, d)
+
+
+def _shift(sl: slice, by: int) -> slice:
+    return slice(sl.start + by, sl.stop + by)
+
+
+def _half_offsets(
+    radius: int, step: int, kernel: tuple[float, ...] | None
+) -> list[tuple[int, int, float, float]]:
+    """One offset ``(oy, ox, log k, 1/|o|)`` of each pair ``±o`` of the ``(2r+1)²`` window
+    (``o`` in units of taps, times ``step`` in pixels); ``kernel[|i|]`` are the separable
+    weights (``None``: all 1)."""
+    out = []
+    for dy in range(0, radius + 1):
+        for dx in range(-radius, radius + 1):
+            if dy == 0 and dx <= 0:
+                continue
+            k = 1.0 if kernel is None else kernel[abs(dy)] * kernel[abs(dx)]
+            out.append((dy * step, dx * step, math.log(k), 1.0 / math.hypot(dy, dx)))
+    return out
+
+
+def _bilateral_tile(
+    tile: Tile,
+    pairs: list[tuple[int, int, float, float]],
+    lum: Tensor,
+    neg_inv_phi_l: Tensor | float,
+    neg_inv_phi_z: Tensor | None,
+    g: Guides,
+    phi_normal: float,
+    linear: Tensor,
+    squared: Tensor | None,
+) -> tuple[Tensor, Tensor, Tensor | None]:
+    """Sums over the window of the pixels of ``tile`` with Falcor's ``computeWeight``
+    ``w = k · exp(−|Δl|/φ_l − |Δz|/(φ_z |o|)) · max(0, n·n')^phi_normal``, the centre with
+    weight 1: ``(Σ w, Σ w·linear, Σ w²·squared)`` over the tile.
+
+    The parts of the exponent that do not depend on the centre (``|Δl|``, ``|Δz|`` and the
+    normal term, which are symmetric in the two pixels) are computed once per pair ``±o``
+    and read by both taps.
+    """
+    _, _, h, w = lum.shape
+    y0, y1, x0, x1 = tile
+    sum_w = torch.ones_like(lum[..., y0:y1, x0:x1])
+    sum_lin = linear[..., y0:y1, x0:x1].clone()
+    sum_sq = None if squared is None else squared[..., y0:y1, x0:x1].clone()
+    depth, normal = g.depth, g.normal
+    if neg_inv_phi_z is None:
+        depth = None
+    for oy, ox, log_k, inv_len in pairs:
+        plus = _window(tile, h, w, oy, ox)
+        minus = _window(tile, h, w, -oy, -ox)
+        if plus is None and minus is None:
+            continue
+        # the pair's terms at p (between p and p + o), for p in both windows' needs
+        need = [
+            r
+            for r in (
+                plus,
+                None if minus is None else (_shift(minus[0], -oy), _shift(minus[1], -ox)),
+            )
+            if r is not None
+        ]
+        py = slice(min(r[0].start for r in need), max(r[0].stop for r in need))
+        px = slice(min(r[1].start for r in need), max(r[1].stop for r in need))
+        qy, qx = _shift(py, oy), _shift(px, ox)
+        dl = (lum[..., py, px] - lum[..., qy, qx]).abs_()
+        dz = None if depth is None else (depth[..., py, px] - depth[..., qy, qx]).abs_()
+        ln: Tensor | float = log_k
+        if normal is not None:
+            n0, n1 = normal[..., py, px], normal[..., qy, qx]
+            dot = n0[:, 0:1] * n1[:, 0:1]
+            dot.addcmul_(n0[:, 1:2], n1[:, 1:2]).addcmul_(n0[:, 2:3], n1[:, 2:3])
+            ln = dot.clamp_(min=1e-30).log_().mul_(phi_normal).add_(log_k)
+        for win, sign in ((plus, 1), (minus, -1)):
+            if win is None:
+                continue
+            cy, cx = win
+            # where this tap's pair terms sit in the (py, px) block
+            ty = _shift(cy, -py.start - (oy if sign < 0 else 0))
+            tx = _shift(cx, -px.start - (ox if sign < 0 else 0))
+            ny, nx = _shift(cy, sign * oy), _shift(cx, sign * ox)
+            e = dl[..., ty, tx] * (
+                neg_inv_phi_l if isinstance(neg_inv_phi_l, float) else neg_inv_phi_l[..., cy, cx]
+            )
+            if dz is not None and neg_inv_phi_z is not None:
+                e.addcmul_(dz[..., ty, tx], neg_inv_phi_z[..., cy, cx], value=inv_len)
+            e.add_(ln if isinstance(ln, float) else ln[..., ty, tx])
+            wt = e.exp_()
+            oy0, ox0 = cy.start - y0, cx.start - x0
+            by, bx = slice(oy0, oy0 + (cy.stop - cy.start)), slice(ox0, ox0 + (cx.stop - cx.start))
+            sum_w[..., by, bx] += wt
+            sum_lin[..., by, bx].addcmul_(wt, linear[..., ny, nx])
+            if sum_sq is not None and squared is not None:
+                sum_sq[..., by, bx].addcmul_(wt.square_(), squared[..., ny, nx])
+    return sum_w, sum_lin, sum_sq
+
+
+def _variance_blur(var: Tensor) -> Tensor:
+    """3×3 Gaussian of the variance (``computeVarianceCenter``), renormalised on the film."""
+    _, _, h, w = var.shape
+    total = torch.zeros_like(var)
+    norm = torch.zeros_like(var[:1, :1])
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            win = _window((0, h, 0, w), h, w, dy, dx)
+            if win is None:
+                continue
+            cy, cx = win
+            k = VARIANCE_BLUR[abs(dy)][abs(dx)]
+            total[..., cy, cx] += k * var[..., _shift(cy, dy), _shift(cx, dx)]
+            norm[..., cy, cx] += k
+    return total / norm
+
+
+def atrous_level(
+    illumination: Tensor, variance: Tensor, g: Guides, step: int, s: SvgfSettings
+) -> tuple[Tensor, Tensor]:
+    """One à-trous level (``SVGFAtrous``) with step ``step``: ``(illumination, variance)``."""
+    _, _, h, w = illumination.shape
+    lum = luminance(illumination)
+    neg_inv_phi_l = -1.0 / (s.phi_color * (_variance_blur(variance) + 1e-10).sqrt())
+    neg_inv_phi_z = None
+    if g.depth_fwidth is not None:
+        neg_inv_phi_z = -1.0 / (g.depth_fwidth.clamp_min(1e-8) * step)
+    pairs = _half_offsets(2, step, ATROUS_WEIGHTS)
+    out_i = torch.empty_like(illumination)
+    out_v = torch.empty_like(variance)
+
+    def run(tile: Tile) -> None:
+        y0, y1, x0, x1 = tile
+        sw, si, sv = _bilateral_tile(
+            tile, pairs, lum, neg_inv_phi_l, neg_inv_phi_z, g, s.phi_normal, illumination, variance
+        )
+        assert sv is not None
+        hit = g.hit[..., y0:y1, x0:x1]
+        keep_i, keep_v = illumination[..., y0:y1, x0:x1], variance[..., y0:y1, x0:x1]
+        out_i[..., y0:y1, x0:x1] = torch.where(hit, si / sw, keep_i)
+        out_v[..., y0:y1, x0:x1] = torch.where(hit, sv / sw.square(), keep_v)
+
+    parallel_map(run, _bands(h, w, 2 * step), like=illumination)
+    return out_i, out_v
+
+
+def spatial_variance(
+    illumination: Tensor,
+    moments: Tensor,
+    variance: Tensor,
+    length: Tensor,
+    g: Guides,
+    s: SvgfSettings,
+) -> tuple[Tensor, Tensor]:
+    """``SVGFFilterMoments``: where the history is shorter than ``spatial_history``, the
+    illumination and moments filtered by a 7×7 cross-bilateral filter and the variance from
+    those moments, boosted by ``4 / n``; elsewhere unchanged. Returns
+    ``(illumination, variance)``. Only the 64×64 tiles holding such a pixel are computed
+    (after a few frames: the disocclusions)."""
+    _, _, h, w = illumination.shape
+    short = (length < s.spatial_history) & g.hit
+    if not bool(short.any()):
+        return illumination, variance
+    lum = luminance(illumination)
+    neg_inv_phi_z = None
+    if g.depth_fwidth is not None:
+        neg_inv_phi_z = -1.0 / (g.depth_fwidth.clamp_min(1e-8) * 3.0)
+    pairs = _half_offsets(s.spatial_radius, 1, None)
+    out_i = illumination.clone()
+    out_v = variance.clone()
+    packed = torch.cat([illumination, moments], 1)
+    tiles = [t for t in _tiles(h, w) if bool(short[..., t[0] : t[1], t[2] : t[3]].any())]
+
+    def run(tile: Tile) -> None:
+        y0, y1, x0, x1 = tile
+        sw, acc, _ = _bilateral_tile(
+            tile, pairs, lum, -1.0 / s.phi_color, neg_inv_phi_z, g, s.phi_normal, packed, None
+        )
+        acc = acc / sw
+        m1, m2 = acc[:, 3:4], acc[:, 4:5]
+        n = length[..., y0:y1, x0:x1]
+        var = (m2 - m1.square()).clamp_min(0.0) * (s.spatial_history / n)
+        sel = short[..., y0:y1, x0:x1]
+        out_i[..., y0:y1, x0:x1] = torch.where(sel, acc[:, :3], illumination[..., y0:y1, x0:x1])
+        out_v[..., y0:y1, x0:x1] = torch.where(sel, var, variance[..., y0:y1, x0:x1])
+
+    parallel_map(run, tiles, like=illumination)
+    return out_i, out_v
+
+
+# --------------------------------------------------------------------------------------------
+# The filter with its state
+# --------------------------------------------------------------------------------------------
+class Svgf:
+    """SVGF over one sequence: call :meth:`step` on its frames in order.
+
+    Example:
+        >>> f = Svgf()
+        >>> frame = torch.full((1, 3, 8, 8), 0.5)
+        >>> out0 = f.step(frame)  # no motion: frame 0 (or a cut)
+        >>> out1 = f.step(frame, motion=torch.zeros(1, 2, 8, 8))
+        >>> tuple(out1.shape), bool(torch.allclose(out1, frame))
+        ((1, 3, 8, 8), True)
+    """
+
+    def __init__(self, settings: SvgfSettings | None = None) -> None:
+        self.settings = (settings or SvgfSettings()).checked()
+        self.history: History | None = None
+
+    def reset(self) -> None:
+        """Forget the history (a cut: the next frame starts afresh)."""
+        self.history = None
+
+    def step(
+        self,
+        color: Tensor,
+        *,
+        albedo: Tensor | None = None,
+        depth: Tensor | None = None,
+        normal: Tensor | None = None,
+        motion: Tensor | None = None,
+        motion_valid: Tensor | None = None,
+    ) -> Tensor:
+        """Denoise the next frame; returns ``(B, 3, H, W)`` linear RGB (>= 0).
+
+        Args:
+            color: ``(B, 3, H, W)`` noisy linear HDR colour (finite, sanitised).
+            albedo, depth, normal: the frame's guide buffers, ``(B, 3|1|3, H, W)``, or
+                ``None``.
+            motion: ``(B, 2, H, W)`` motion to the previous frame (pixels, x right, y down);
+                ``None`` makes this frame a cut: the history is dropped.
+            motion_valid: ``(B, 1, H, W)``, 0 where the motion is not to be trusted.
+
+        A frame whose size differs from the history's is a cut too.
+        """
+        s = self.settings
+        if color.ndim != 4 or color.shape[1] != 3:
+            raise InputError(f"svgf: color must be (B, 3, H, W), got {tuple(color.shape)}")
+        g = make_guides(depth, normal, color)
+        factor = None
+        if albedo is not None and s.demodulate:
+            irr, factor = demodulate(color, albedo.to(color.dtype), s.albedo_eps)
+        else:
+            irr = color
+        irr = irr.clamp(0.0, MAX_LUMINANCE)
+        hist = self.history
+        if hist is not None and (motion is None or hist.illumination.shape != irr.shape):
+            hist = None
+        if hist is None:
+            reprojected = torch.zeros_like(irr[:, :1]).expand(-1, 6, -1, -1)
+            ok = torch.zeros_like(irr[:, :1], dtype=torch.bool)
+        else:
+            assert motion is not None
+            reprojected, ok = reproject(hist, g, motion, motion_valid, s)
+        illum, moments, variance, length = accumulate(irr, reprojected, ok, s)
+        feedback = illum
+        illum_f, var_f = spatial_variance(illum, moments, variance, length, g, s)
+        for i in range(s.iterations):
+            illum_f, var_f = atrous_level(illum_f, var_f, g, 1 << i, s)
+            if i == min(s.feedback_tap, s.iterations - 1):
+                feedback = illum_f
+        self.history = History(feedback, moments, length, g)
+        out = illum_f if factor is None else illum_f * factor
+        return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
+
+
+def with_overrides(settings: SvgfSettings, overrides: dict[str, object]) -> SvgfSettings:
+    """``settings`` with some fields replaced (unknown names: :class:`InputError`)."""
+    known = SvgfSettings.__dataclass_fields__
+    bad = [k for k in overrides if k not in known]
+    if bad:
+        raise InputError(f"svgf: unknown setting(s) {bad}; known: {sorted(known)}")
+    return replace(settings, **overrides).checked()  # type: ignore[arg-type]
+
+
+__all__ = [
+    "ATROUS_WEIGHTS",
+    "LUMINANCE",
+    "Guides",
+    "History",
+    "Svgf",
+    "SvgfSettings",
+    "accumulate",
+    "atrous_level",
+    "luminance",
+    "make_guides",
+    "reproject",
+    "spatial_variance",
+    "with_overrides",
+]

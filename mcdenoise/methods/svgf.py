@@ -1,0 +1,107 @@
+"""The ``svgf`` method: spatiotemporal variance-guided filtering over a sequence.
+
+A temporal method (:attr:`~mcdenoise.method.Method.temporal`): ``run_sequence`` keeps the
+history of :class:`~mcdenoise.filters.svgf.Svgf` from one frame to the next (the algorithm,
+its Falcor reference and the deviations are in :mod:`mcdenoise.filters.svgf`). Its
+parameters are :class:`~mcdenoise.filters.svgf.SvgfSettings`.
+
+Buffers: it requires only ``color`` and uses ``albedo`` (demodulation), ``depth`` and
+``normal`` (edge-stopping and the reprojection tests), ``motion`` and ``motion_valid``.
+The guides are used as they are, without the NLM prefilter of the other filters: SVGF is
+designed for a rasteriser's noise-free G-buffer, and a path tracer's first-hit buffers are
+nearly noise-free (noisy only under depth of field and motion blur).
+
+**Frames without motion are cuts.** A frame without a ``motion`` buffer starts a new
+history: it is denoised as frame 0 is (the spatial variance estimate and the à-trous
+filter, no temporal accumulation). So a still image, or a sequence of one frame, works and
+gives SVGF's first-frame result; a sequence whose files have no motion is filtered frame by
+frame without flicker reduction (``mcdenoise denoise`` refuses such a sequence for a
+temporal method before it gets here). ``motion_valid`` = 0 drops the history of those
+pixels, everywhere for a cut. Frames of one sequence must share one size (else a one-line
+``InputError``).
+
+Never the default (priority 5, below ``nlm``, which accepts every input ``svgf`` accepts).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Mapping
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from mcdenoise.errors import InputError
+from mcdenoise.filters.parallel import single_threaded_ops
+from mcdenoise.filters.svgf import Svgf, SvgfSettings, with_overrides
+from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.method import Method, dataclass_defaults
+
+#: Buffers the method reads when present.
+USES = ("albedo", "normal", "depth", "motion", "motion_valid")
+
+
+def _tensor(b: FeatureBuffers, name: str, device: torch.device) -> Tensor | None:
+    t = b.get(name)
+    return None if t is None else t.to(device=device, dtype=torch.float32).unsqueeze(0)
+
+
+def denoise_svgf_sequence(
+    frames: Iterable[FeatureBuffers],
+    device: torch.device | str = "cpu",
+    **overrides: object,
+) -> Iterator[Tensor]:
+    """SVGF over the frames of one sequence, in order: one ``(3, H, W)`` float32 output per
+    frame, yielded as soon as it is done (keyword overrides replace fields of
+    :class:`SvgfSettings`).
+
+    Example:
+        >>> fb = FeatureBuffers({"color": torch.full((3, 8, 8), 0.5)})
+        >>> [tuple(o.shape) for o in denoise_svgf_sequence([fb, fb])]
+        [(3, 8, 8), (3, 8, 8)]
+    """
+    dev = torch.device(device)
+    svgf = Svgf(with_overrides(SvgfSettings(), dict(overrides)))
+    size: tuple[int, int] | None = None
+    for index, b in enumerate(frames):
+        b.require(["color"], needed_by="method 'svgf'")
+        if size is None:
+            size = b.shape
+        elif b.shape != size:
+            raise InputError(
+                f"svgf: frame {index} is {b.shape[1]}x{b.shape[0]} but the sequence is "
+                f"{size[1]}x{size[0]}: every frame of a sequence must have one size"
+            )
+        with single_threaded_ops(), torch.no_grad():
+            color = _tensor(b, "color", dev)
+            assert color is not None
+            out = svgf.step(
+                color,
+                albedo=_tensor(b, "albedo", dev),
+                depth=_tensor(b, "depth", dev),
+                normal=_tensor(b, "normal", dev),
+                motion=_tensor(b, "motion", dev),
+                motion_valid=_tensor(b, "motion_valid", dev),
+            )
+        yield out[0]
+
+
+def _run_sequence(
+    frames: Iterable[FeatureBuffers], params: Mapping[str, Any], device: torch.device
+) -> Iterator[Tensor]:
+    return denoise_svgf_sequence(frames, device, **params)
+
+
+METHOD = Method(
+    name="svgf",
+    summary="spatiotemporal variance-guided filtering over a sequence (Schied 2017, Falcor)",
+    requires=("color",),
+    uses=USES,
+    defaults=dataclass_defaults(SvgfSettings),
+    run=None,
+    priority=5,
+    temporal=True,
+    run_sequence=_run_sequence,
+)
+
+__all__ = ["METHOD", "USES", "denoise_svgf_sequence"]
