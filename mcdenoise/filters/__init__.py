@@ -10,6 +10,10 @@
 * :mod:`~mcdenoise.filters.albedo` -- albedo demodulation (:func:`demodulate`).
 * :mod:`~mcdenoise.filters.settings` -- the tuned parameters of the fixed filters
   (:class:`XbfSettings`, :class:`NlmSettings`).
+* :mod:`~mcdenoise.filters.warp` -- backward warping by motion vectors with a validity mask
+  (:func:`warp`), shared by the temporal methods.
+* :mod:`~mcdenoise.filters.svgf` -- spatiotemporal variance-guided filtering (:class:`Svgf`,
+  Schied 2017 after Falcor's ``SVGFPass``).
 
 Everything here takes and returns tensors; the preparation layer (``prep/``) makes them from
 buffers and the method adapters (``methods/``) run the whole pipelines.
@@ -21,12 +25,16 @@ from mcdenoise.filters.cross_bilateral import CrossBilateral, cross_bilateral
 from mcdenoise.filters.kernels import Window, accumulate_weighted, apply_kernels
 from mcdenoise.filters.nlm import NonLocalMeans, non_local_means
 from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, XbfSettings
+from mcdenoise.filters.svgf import Svgf, SvgfSettings
+from mcdenoise.filters.warp import warp
 
 __all__ = [
     "GUIDE_FEATURES",
     "CrossBilateral",
     "NlmSettings",
     "NonLocalMeans",
+    "Svgf",
+    "SvgfSettings",
     "Window",
     "XbfSettings",
     "accumulate_weighted",
@@ -37,4 +45,5 @@ __all__ = [
     "demodulated_variance",
     "median3",
     "non_local_means",
+    "warp",
 ]
