@@ -41,8 +41,8 @@ class _MetricsOption(click.Option):
     "reference",
     default=None,
     type=click.Path(),
-    help="Reference EXR, or a folder of references matched to outputs by file-name prefix "
-    "(required without --experiment).",
+    help="Reference EXR, a folder of references matched to outputs by file-name prefix, or "
+    "a folder of frames frame_0000.exr ... (a sequence) (required without --experiment).",
 )
 @click.option(
     "-i",
@@ -50,7 +50,8 @@ class _MetricsOption(click.Option):
     "inputs",
     multiple=True,
     type=click.Path(),
-    help="Noisy input(s) to show as the 'noisy' row (default: each output's recorded source).",
+    help="Noisy input(s) to show as the 'noisy' row (default: each output's recorded source); "
+    "for sequences, a folder of noisy frames.",
 )
 @click.option(
     "-o",

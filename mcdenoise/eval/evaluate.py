@@ -1259,7 +1259,7 @@ def _noisy_sequences(
     inputs: Sequence[PathLike], stems: Sequence[str], index: Mapping[str, int]
 ) -> list[list[tuple[Path, str | None, str | None]]]:
     """The given noisy folders of frames that cover every reference frame (matched by name),
-    as (file, part, profile) per frame, read with their first part."""
+    as (file, part, profile) per frame; a multi-part frame is read with its first part."""
     found = []
     for arg in inputs:
         by_frame: dict[int, Path] = {}
@@ -1268,8 +1268,19 @@ def _noisy_sequences(
             if hit is not None:
                 by_frame.setdefault(index[hit], f)
         if len(by_frame) == len(stems):
-            found.append([(by_frame[i], None, None) for i in range(len(stems))])
+            found.append(
+                [(f, _first_part(f), None) for f in (by_frame[i] for i in range(len(stems)))]
+            )
     return found
+
+
+def _first_part(path: Path) -> str | None:
+    """The name of the first part of a multi-part EXR (the lowest spp level of a file written
+    by ``mcdenoise render``), else ``None``."""
+    from mcdenoise.io.exr import probe_exr
+
+    parts = probe_exr(path)
+    return parts[0].name or None if len(parts) > 1 else None
 
 
 def run_eval(

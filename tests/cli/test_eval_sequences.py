@@ -300,3 +300,28 @@ def test_array_sequences_and_suffixed_frames(tmp_path, sequence):
     res = evaluate_sequences(sequence["ref"], [both], metrics=["trelmse"])
     assert sorted(r.method for r in res.records) == ["flicker", "stable"]
     assert not math.isnan(res.records[0].metrics["trelmse"])
+
+
+def test_noisy_frames_from_input_folder_when_outputs_record_no_source(sequence, tmp_path):
+    bare = tmp_path / "bare"
+    for t, img in enumerate(sequence["stable"]):
+        write_exr(bare / f"frame_{t:04d}.exr", rgb(img.astype(np.float32)))
+    without = evaluate_sequences(sequence["ref"], [bare], metrics=["relmse"])
+    assert [r.method for r in without.records] == ["bare"]  # the folder names the method
+    r = run_cli(
+        "eval",
+        bare,
+        "--ref",
+        sequence["ref"],
+        "-i",
+        sequence["seq"],
+        "-o",
+        tmp_path / "rep",
+        "--metrics",
+        "relmse,trelmse",
+    )
+    assert r.exit_code == 0, r.output
+    data = json.loads((tmp_path / "rep" / "results.json").read_text())
+    noisy, out = data["records"]
+    assert noisy["role"] == "noisy" and noisy["spp"] == 4  # the first part: spp4
+    assert out["input"] == noisy["file"] and out["relmse_ratio"] < 0.1
