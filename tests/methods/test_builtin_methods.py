@@ -15,6 +15,7 @@ def test_builtin_methods_are_listed_explicitly_with_their_aliases() -> None:
         "kalantari-nlm",
         "kpcn",
         "oidn",
+        "svgf",
     ]
     assert all(isinstance(m, Method) for m, _ in table)
     assert dict((m.name, a) for m, a in table)["cross-bilateral"] == ("xbf", "cross_bilateral")
@@ -24,6 +25,6 @@ def test_builtin_methods_are_listed_explicitly_with_their_aliases() -> None:
 def test_priorities_give_the_documented_default_order() -> None:
     prio = {m.name: m.priority for m, _ in builtin_methods()}
     assert prio["kalantari-xbf"] > prio["kalantari-nlm"] > prio["nlm"] > prio["cross-bilateral"]
-    assert prio["cross-bilateral"] > prio["oidn"] == 0
+    assert prio["cross-bilateral"] > prio["svgf"] > prio["oidn"] == 0
     assert prio["kpcn"] in (35, -1)  # first; -1 only without shipped weights
     assert prio["kpcn"] == -1 or prio["kpcn"] > prio["kalantari-xbf"]
