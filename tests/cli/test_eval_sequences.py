@@ -325,3 +325,19 @@ def test_noisy_frames_from_input_folder_when_outputs_record_no_source(sequence, 
     noisy, out = data["records"]
     assert noisy["role"] == "noisy" and noisy["spp"] == 4  # the first part: spp4
     assert out["input"] == noisy["file"] and out["relmse_ratio"] < 0.1
+
+
+def test_a_nan_frame_fails_its_sequence_in_the_report(sequence, tmp_path):
+    broken = [f.copy() for f in sequence["stable"]]
+    broken[3][0, 2, 2] = np.nan
+    write_outputs(tmp_path / "out_broken", sequence["seq"], broken, "broken")
+    rep = tmp_path / "rep"
+    r = run_cli("eval", tmp_path / "out_broken", "--ref", sequence["ref"], "-o", rep)
+    assert r.exit_code == 0, r.output
+    assert "FAILED: 1 of 5 frames failed; 1 non-finite pixel(s)" in r.stdout
+    data = json.loads((rep / "results.json").read_text())
+    (rec,) = [x for x in data["records"] if x["method"] == "broken"]
+    assert rec["failed"] and rec["metrics"]["trelmse"] is None and rec["bad_pixels"] == 1
+    frames = rec["sequence"]["frames"]
+    assert frames[3]["failed"] and frames[2]["metrics"]["relmse"] is not None
+    assert "FAILED" in (rep / "report.html").read_text()
