@@ -6,7 +6,9 @@ its Falcor reference and the deviations are in :mod:`mcdenoise.filters.svgf`). I
 parameters are :class:`~mcdenoise.filters.svgf.SvgfSettings`.
 
 Buffers: it requires only ``color`` and uses ``albedo`` (demodulation), ``depth`` and
-``normal`` (edge-stopping and the reprojection tests), ``motion`` and ``motion_valid``.
+``normal`` (edge-stopping and the reprojection tests), ``motion`` and ``motion_valid``, and
+``color_var`` (steers the warm-up filter; a deviation from Falcor explained in
+:mod:`mcdenoise.filters.svgf`).
 The guides are used as they are, without the NLM prefilter of the other filters: SVGF is
 designed for a rasteriser's noise-free G-buffer, and a path tracer's first-hit buffers are
 nearly noise-free (noisy only under depth of field and motion blur).
@@ -38,7 +40,7 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method, dataclass_defaults
 
 #: Buffers the method reads when present.
-USES = ("albedo", "normal", "depth", "motion", "motion_valid")
+USES = ("color_var", "albedo", "normal", "depth", "motion", "motion_valid")
 
 
 def _tensor(b: FeatureBuffers, name: str, device: torch.device) -> Tensor | None:
@@ -82,6 +84,7 @@ def denoise_svgf_sequence(
                 normal=_tensor(b, "normal", dev),
                 motion=_tensor(b, "motion", dev),
                 motion_valid=_tensor(b, "motion_valid", dev),
+                color_var=_tensor(b, "color_var", dev),
             )
         yield out[0]
 

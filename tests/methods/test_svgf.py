@@ -354,3 +354,35 @@ def test_cuda_matches_cpu() -> None:
     gpu = list(m.run_frames([f.to("cuda") for f, _ in frames], params, torch.device("cuda")))
     for a, b in zip(cpu, gpu):
         torch.testing.assert_close(b.cpu(), a, atol=1e-4, rtol=1e-4)
+
+
+def test_a_bright_light_does_not_spread_over_its_plane() -> None:
+    """A light of radiance 25 in a ceiling of 0.3 (one plane: same depth and normal), its edge
+    pixels partly covered, 4-spp-like noise with its variance: the ceiling two pixels away
+    stays near 0.3. Falcor's φ = 10 with
+    its absolute warm-up φ spreads the light (the reason for the defaults, module doc)."""
+    g = torch.Generator().manual_seed(8)
+    h = w = 40
+    clean = torch.full((3, h, w), 0.3)
+    clean[:, 15:25, 15:25] = 6.5  # its edge pixels are partly covered by the light ...
+    clean[:, 16:24, 16:24] = 25.0
+    var = (0.05 * clean) ** 2
+    var[:, 15:25, 15:25] = 29.0  # ... and noisy: 4 samples either hit it or not
+    var[:, 16:24, 16:24] = (0.05 * 25.0) ** 2
+    noisy = (clean + var.sqrt() * torch.randn(3, h, w, generator=g)).clamp_min(0)
+    fb = FeatureBuffers(
+        {
+            "color": noisy,
+            "color_var": var,
+            "albedo": torch.full((3, h, w), 0.7),
+            "normal": torch.tensor([0.0, -1.0, 0.0]).view(3, 1, 1).expand(3, h, w),
+            "depth": torch.full((1, h, w), 3.0),
+        }
+    )
+    ring = torch.zeros(h, w, dtype=torch.bool)
+    ring[12:28, 12:28] = True
+    ring[14:26, 14:26] = False  # pixels 2..4 away from the light
+    (out,) = _run([(fb, None)])
+    assert float(out[:, ring].max()) < 0.45
+    (falcor,) = _run([(fb, None)], phi_color=10.0, use_color_var=False)
+    assert float(falcor[:, ring].max()) > 0.6
