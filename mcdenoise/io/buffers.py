@@ -4,24 +4,33 @@ Every buffer is a float32 ``torch.Tensor`` of layout ``(C, H, W)`` on the CPU (m
 :meth:`FeatureBuffers.to`). Buffers are addressed by *feature name*, never by channel position;
 the names and channel counts are fixed here and nowhere else:
 
-=============  ==  ====================================================================
-name           C   meaning
-=============  ==  ====================================================================
-color          3   noisy radiance, linear HDR RGB, the mean of ``spp`` samples
-albedo         3   first-hit reflectance ("texture"), linear RGB, usually in [0, 1]
-normal         3   first-hit shading normal, world space, components in [-1, 1]
-depth          1   distance from the camera to the first hit along the ray (scene units;
-                   Mitsuba's ``T``; not the planar camera z)
-position       3   first-hit world position (scene units)
-diffuse        3   diffuse part of ``color`` (optional extra)
-specular       3   specular part of ``color`` (optional extra)
-visibility     1   direct-light visibility in [0, 1] (optional extra)
-motion         2   screen-space motion to the previous frame, pixels (x right, y down):
-                   the surface seen at pixel p was at ``p + motion`` in frame t - 1
-motion_valid   1   1 where ``motion`` can be trusted (no disocclusion/edge), else 0
-motion_next    2   screen-space motion to the next frame, pixels (x right, y down): the
-                   surface seen at pixel p will be at ``p + motion_next`` in frame t + 1
-=============  ==  ====================================================================
+=================  ==  ====================================================================
+name               C   meaning
+=================  ==  ====================================================================
+color              3   noisy radiance, linear HDR RGB, the mean of ``spp`` samples
+albedo             3   first-hit reflectance ("texture"), linear RGB, usually in [0, 1]
+normal             3   first-hit shading normal, world space, components in [-1, 1]
+depth              1   distance from the camera to the first hit along the ray (scene units;
+                       Mitsuba's ``T``; not the planar camera z)
+position           3   first-hit world position (scene units)
+diffuse            3   diffuse part of ``color`` (optional extra)
+specular           3   specular part of ``color`` (optional extra)
+visibility         1   direct-light visibility in [0, 1] (optional extra)
+motion             2   screen-space motion to the previous frame, pixels (x right, y down):
+                       the surface seen at pixel p was at ``p + motion`` in frame t - 1
+motion_valid       1   1 where ``motion`` can be trusted (no disocclusion/edge), else 0
+motion_next        2   screen-space motion to the next frame, pixels (x right, y down): the
+                       surface seen at pixel p will be at ``p + motion_next`` in frame t + 1
+                       (0 in the last frame of a sequence)
+motion_next_valid  1   1 where ``motion_next`` can be trusted: sampling frame t + 1 at
+                       ``p + motion_next`` finds the surface seen at p (its own mask: frame
+                       t + 1's ``motion_valid`` is on t + 1's pixels); 0 in the last frame
+=================  ==  ====================================================================
+
+``motion_next`` of frame t and ``motion`` of frame t + 1 are opposite where both are valid:
+``motion_next_t(p) = -motion_{t+1}(p + motion_next_t(p))``. ``mcdenoise render --frames``
+writes all four motion buffers (:mod:`mcdenoise.render.sequences`); Blender Cycles' ``Vector``
+pass gives ``motion`` and ``motion_next`` but no masks (:mod:`mcdenoise.io.profiles.cycles`).
 
 Where the camera ray escapes (background), ``depth``, ``position`` and ``normal`` are 0.
 
@@ -58,6 +67,7 @@ FEATURES: dict[str, int] = {
     "motion": 2,
     "motion_valid": 1,
     "motion_next": 2,
+    "motion_next_valid": 1,
 }
 #: Suffix of variance buffers: ``color_var`` is the variance of the mean of ``color``.
 VAR_SUFFIX = "_var"

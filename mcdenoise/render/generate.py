@@ -25,14 +25,17 @@ Sequences (``frames = N``, ``--frames N``)
     frame's camera (``scene_dict(..., camera=...)``) and object positions, and its own image
     seed (:func:`~mcdenoise.render.jobs.frame_seed`), so the noise of consecutive frames is
     independent. Every level and the reference also get the frame's ``motion`` buffer
-    (``motion.X/Y``, pixels to the previous frame, 0 in frame 0) and the validity mask buffer
-    ``motion_valid``, both from an un-jittered pixel-centre geometry pass, identical in every
-    part (files: :func:`~mcdenoise.render.layout.write_frame`). The manifest records one entry
-    per sequence: the animation, and per frame its time, camera, object offsets, seeds, files
-    and seconds (levels, reference, geometry pass). Shards split the work by sequence (frames
-    need their predecessor's geometry); resume works per frame: the shard manifest is
-    rewritten after every frame, a re-run renders only the frames missing (recomputing the
-    cheap geometry pass of the frame before the first of them).
+    (``motion.X/Y``, pixels to the previous frame, 0 in frame 0), ``motion_next``
+    (``motion_next.X/Y``, pixels to the next frame, 0 in the last frame) and their validity
+    masks ``motion_valid`` and ``motion_next_valid``, all from the un-jittered pixel-centre
+    geometry passes of the frame and its neighbours, identical in every part (files:
+    :func:`~mcdenoise.render.layout.write_frame`). The manifest records one entry per
+    sequence: the animation, and per frame its time, camera, object offsets, seeds, files,
+    the valid fractions of both masks and seconds (levels, reference, the geometry passes run
+    for the frame: its own or its successor's, each pass counted once). Shards split the work
+    by sequence (frames need their neighbours' geometry); resume works per frame: the shard
+    manifest is rewritten after every frame, a re-run renders only the frames missing
+    (recomputing the cheap geometry passes of the frames next to them).
 
 Determinism: the same spec, seed, settings and variant give identical pixel data.
 """
@@ -318,21 +321,30 @@ def render_sequence(
         out["finished_at"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         return out
 
-    previous_geometry: sq.GeometryBuffer | None = None
+    geometries: dict[int, sq.GeometryBuffer] = {}  # frames f - 1, f, f + 1 at most
+
+    def geometry_of(g: int) -> sq.GeometryBuffer:
+        if g not in geometries:  # each pass once (a resumed run redoes its neighbours')
+            geometries[g] = sq.render_geometry(
+                sq.spec_at(spec, times[g]), plan, cameras[g], config.width, config.height
+            )
+        return geometries[g]
+
     for f in range(n):
+        geometries.pop(f - 2, None)
         if f in kept:
             frames[f] = kept[f]
-            previous_geometry = None
             continue
-        if f > 0 and previous_geometry is None:  # resumed after frame f-1: redo its geometry
-            previous_geometry = sq.render_geometry(
-                sq.spec_at(spec, times[f - 1]), plan, cameras[f - 1], config.width, config.height
-            )
         frame_spec = sq.spec_at(spec, times[f])
         t0 = time.perf_counter()
-        geometry = sq.render_geometry(frame_spec, plan, cameras[f], config.width, config.height)
+        geometry = geometry_of(f)
+        previous = geometry_of(f - 1) if f > 0 else None
+        following = geometry_of(f + 1) if f + 1 < n else None
         motion, valid = sq.motion_vectors(
-            geometry, previous_geometry, offsets[f] - offsets[f - 1] if f > 0 else None
+            geometry, previous, offsets[f] - offsets[f - 1] if f > 0 else None
+        )
+        motion_next, next_valid = sq.next_motion_vectors(
+            geometry, following, offsets[f + 1] - offsets[f] if f + 1 < n else None
         )
         geometry_seconds = time.perf_counter() - t0
         frame_job = ImageJob(
@@ -350,7 +362,13 @@ def render_sequence(
                 "mcdenoise:camera": json.dumps(camera_record(cameras[f])),
             },
         )
-        files = write_frame(rendered, motion, valid, config, job.id, f)
+        motions = {
+            "motion": motion,
+            "motion_valid": valid,
+            "motion_next": motion_next,
+            "motion_next_valid": next_valid,
+        }
+        files = write_frame(rendered, motions, config, job.id, f)
         frames[f] = {
             "frame": f,
             "time": times[f],
@@ -359,12 +377,12 @@ def render_sequence(
             **({"object_offsets": offsets[f].tolist()} if moving else {}),
             "files": files,
             "valid_fraction": round(float(valid.mean()), 6),
+            "next_valid_fraction": round(float(next_valid.mean()), 6),
             "load_seconds": rendered.load_seconds,
             "geometry_seconds": round(geometry_seconds, 6),
             "levels": rendered.level_records,
             "reference": rendered.reference_record,
         }
-        previous_geometry = geometry
         if on_frame is not None:
             on_frame(snapshot(False))
     return snapshot(True)

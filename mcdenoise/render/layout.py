@@ -18,11 +18,12 @@ Output folder layout (``DIR``)::
 ``mcdenoise.io.load_buffers("DIR/<id>.exr", part="spp16")`` reads a level; without ``part``
 it reads the first (lowest spp).
 
-Sequences (``--frames N``) write one folder per sequence, every frame with the ``motion``
-and ``motion_valid`` buffers added to every part::
+Sequences (``--frames N``) write one folder per sequence, every frame with the ``motion``,
+``motion_valid``, ``motion_next`` and ``motion_next_valid`` buffers added to every part
+(:mod:`mcdenoise.render.sequences`)::
 
-    DIR/<id>/frame_0000.exr       levels of frame 0 (parts spp<n>), + motion
-    DIR/<id>/ref/frame_0000.exr   its reference, + motion
+    DIR/<id>/frame_0000.exr       levels of frame 0 (parts spp<n>), + motion buffers
+    DIR/<id>/ref/frame_0000.exr   its reference, + motion buffers
 
 so ``mcdenoise denoise DIR/<id>`` sees the frames and never the references.
 
@@ -127,15 +128,15 @@ def frame_reference_file(sequence_id: str, frame: int) -> str:
 
 def write_frame(
     rendered: RenderedImage,
-    motion: torch.Tensor,
-    valid: torch.Tensor,
+    motion: Mapping[str, torch.Tensor],
     config: RenderConfig,
     sequence_id: str,
     frame: int,
 ) -> dict[str, str]:
     """Write frame ``frame`` of a sequence: its levels and reference with the ``motion``
-    ``(2, H, W)`` and ``motion_valid`` ``(1, H, W)`` buffers added to every part, atomically;
-    return the files (relative to ``config.out``)."""
+    buffers added to every part (``motion``, ``motion_valid``, ``motion_next``,
+    ``motion_next_valid``: name -> ``(C, H, W)``), atomically; return the files (relative to
+    ``config.out``)."""
     from mcdenoise.io.buffer_files import save_buffers, save_buffers_parts
 
     files = {
@@ -145,8 +146,8 @@ def write_frame(
     noisy, ref = config.out / files["noisy"], config.out / files["reference"]
     ref.parent.mkdir(parents=True, exist_ok=True)
     for fb in (*rendered.levels.values(), rendered.reference):
-        fb["motion"] = motion
-        fb["motion_valid"] = valid
+        for name, buffer in motion.items():
+            fb[name] = buffer
     save_buffers_parts(noisy, rendered.levels, compression=config.compression)
     save_buffers(ref, rendered.reference, compression=config.compression)
     return files

@@ -2,8 +2,9 @@
 
 A sequence is a scene spec sampled at ``N`` frames, at sequence times ``s = f / (N - 1)``
 (``f = 0 .. N-1``; ``s = 0`` for a single frame). Each frame is rendered like a still image
-(every spp level and the reference) with the frame's camera and object positions, plus a
-``motion`` buffer and a reprojection validity mask computed here.
+(every spp level and the reference) with the frame's camera and object positions, plus the
+``motion`` (to the previous frame) and ``motion_next`` (to the next frame) buffers and their
+reprojection validity masks, computed here.
 
 Camera paths (``[animation]`` of the spec, :class:`mcdenoise.render.spec.Animation`)
     ``orbit``: the origin turns about the axis through the target along the camera's ``up``,
@@ -38,6 +39,14 @@ Motion vectors (buffer ``motion``, channels ``motion.X``/``motion.Y``, pixels, x
     direction at infinity (pure camera rotation), which is exact for environment maps.
     Refraction and reflection are not followed: through glass or in a mirror the motion is
     that of the glass's or mirror's own surface, as with a rasteriser's vectors.
+Motion to the next frame (buffer ``motion_next``, channels ``motion_next.X/Y``)
+    The same from frame ``t`` to frame ``t + 1`` (:func:`next_motion_vectors`): the point
+    seen at pixel ``p`` in frame ``t`` will be at ``p + motion_next`` in frame ``t + 1``;
+    0 in the last frame. Its own mask ``motion_next_valid`` (channel ``motion_next_valid.Y``)
+    is built like ``motion_valid`` below against frame ``t + 1``'s geometry pass (all 0 in
+    the last frame): frame ``t + 1``'s ``motion_valid`` lives on that frame's pixels and
+    cannot say which pixels of frame ``t`` are seen again. Where both are valid,
+    ``motion_next_t(p) = -motion_{t+1}(p + motion_next_t(p))``.
 Validity mask (channel ``motion_valid.Y`` next to ``motion``, 1 = valid, 0 = not)
     1 where bilinearly sampling frame ``t - 1`` at ``q`` gives back what pixel ``p`` shows:
     ``q`` lies on the film, the point is in front of the previous camera, every bilinear tap
@@ -77,6 +86,8 @@ DEFAULT_ORBIT_DEGREES_PER_FRAME = 1.0
 DEPTH_TOLERANCE = 0.01
 #: EXR channel of the validity mask, written next to ``motion.X``/``motion.Y``.
 VALID_CHANNEL = "motion_valid.Y"
+#: EXR channel of the next frame's validity mask, next to ``motion_next.X``/``motion_next.Y``.
+NEXT_VALID_CHANNEL = "motion_next_valid.Y"
 #: Object ``i`` of the geometry pass is a diffuse BSDF of reflectance ``(i + 1) / ID_SCALE``,
 #: read back through the ``albedo`` AOV (exact in float32 for fewer than 2**16 objects).
 ID_SCALE = 2.0**16
@@ -457,6 +468,42 @@ def motion_vectors(
         torch.from_numpy(np.moveaxis(motion, -1, 0).astype(np.float32)),
         torch.from_numpy(valid[None].astype(np.float32)),
     )
+
+
+def next_motion_vectors(
+    current: GeometryBuffer,
+    following: GeometryBuffer | None,
+    displacement: np.ndarray | None = None,
+    *,
+    depth_tolerance: float = DEPTH_TOLERANCE,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Screen-space motion of frame ``t`` to frame ``t + 1`` (``motion_next``) and its
+    validity mask (``motion_next_valid``).
+
+    The same construction as :func:`motion_vectors` with the next frame in the role of the
+    previous one: the point seen through the centre of pixel ``p`` in frame ``t`` is moved
+    with its object to frame ``t + 1`` and projected with frame ``t + 1``'s camera, so
+    ``next_pixel = p + motion_next``; the mask is 1 where bilinearly sampling frame ``t + 1``
+    there finds that same surface (same object under every tap, no silhouette, distance
+    within ``depth_tolerance``). Where frame ``t + 1``'s ``motion`` is valid at ``q``, the two
+    vectors are opposite: ``motion_next(p) = -motion_{t+1}(q)`` with ``q = p +
+    motion_next(p)`` (up to float32 rounding of the positions), since both map one surface
+    point between the same two cameras.
+
+    Args:
+        current: geometry pass of frame ``t``.
+        following: geometry pass of frame ``t + 1``; ``None`` for the last frame (motion 0,
+            nothing valid).
+        displacement: ``(n_objects, 3)`` world translation of each object from frame ``t``
+            to frame ``t + 1`` (default: nothing moves).
+        depth_tolerance: relative tolerance of the distance test of the mask.
+
+    Returns:
+        ``motion_next`` float32 ``(2, H, W)`` in pixels (x right, y down) and ``valid``
+        float32 ``(1, H, W)`` in {0, 1}.
+    """
+    back = None if displacement is None else -np.asarray(displacement, dtype=np.float64)
+    return motion_vectors(current, following, back, depth_tolerance=depth_tolerance)
 
 
 def warp_previous(previous: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:

@@ -405,6 +405,60 @@ def test_moving_object_uses_its_own_motion_and_marks_what_it_uncovers(variant: s
     assert np.abs(wrong[0].numpy() - want)[ball].min() > 1.0
 
 
+ORBIT_KEYS = """[animation]
+camera_path = "keyframes"
+keyframes = [{ origin = [0, 0, 4], target = [0, 0, 0] }, { origin = [1, 0, 4], target = [1, 0, 0] }]"""
+
+
+@pytest.mark.mitsuba
+def test_motion_next_over_a_translating_camera_is_the_analytic_opposite(variant: str) -> None:
+    """The camera moves right by 0.5 per frame over a plane at depth 4: ``motion`` is
+    ``+shift`` (points came from the right), ``motion_next`` is ``-shift``; the last frame
+    has no next frame."""
+    w, h = 32, 24
+    g = geometry(plane_spec(ORBIT_KEYS), 3, w, h)
+    shift = film_scale(40, w) * 0.5 / 4
+    nxt, valid = sq.next_motion_vectors(g[1], g[2])
+    torch.testing.assert_close(nxt[0], torch.full((h, w), -shift), atol=2e-3, rtol=0)
+    torch.testing.assert_close(nxt[1], torch.zeros(h, w), atol=2e-3, rtol=0)
+    inside = torch.from_numpy(np.arange(w) + 0.5 - shift >= 0).expand(h, w)
+    assert torch.equal(valid[0] > 0, inside)  # valid unless the point leaves the next film
+    last, none = sq.next_motion_vectors(g[2], None)
+    assert not last.any() and not none.any()
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("scene", ["orbit", "moving"])
+def test_motion_next_of_a_frame_is_minus_the_motion_of_the_next(variant: str, scene: str) -> None:
+    """At pixel p of frame t, ``motion_next_t(p) = -motion_{t+1}(q)``, ``q = p +
+    motion_next_t(p)``: frame t+1's vectors (bilinearly sampled at q) bring the point back.
+    Checked where both masks hold (every tap of q valid in frame t+1), on an orbiting camera
+    over a textured floor and a ball, and on a ball moving under a static camera (the ball's
+    own displacement is needed: without it, its vectors are wrong)."""
+    spec = spec_of(WARP, name="w") if scene == "orbit" else spec_of(MOVING)
+    w, h = 32, 24
+    g = geometry(spec, 3, w, h)
+    disp = sq.object_offsets(spec, 1.0) - sq.object_offsets(spec, 0.5)
+    nxt, next_valid = sq.next_motion_vectors(g[1], g[2], disp)
+    motion, valid = sq.motion_vectors(g[2], g[1], disp)
+    back = sq.warp_previous(motion[None].double(), nxt[None].double())[0]
+    taps_valid = sq.warp_previous(valid[None], nxt[None])[0]
+    both = (next_valid[0] > 0) & (taps_valid[0] > 0.999)
+    assert int(both.sum()) > 0.5 * w * h
+    assert float(nxt.norm(dim=0)[both].mean()) > 0.1  # something really moves
+    err = (back + nxt.double()).abs().amax(dim=0)[both]
+    # Exact up to bilinear interpolation of a smooth field between pixel centres: tiny on the
+    # ball, a little more where the floor's perspective bends the field most.
+    assert float(err.median()) < 5e-3 and float(err.quantile(0.9)) < 1e-2, err.max()
+    if scene == "moving":
+        ball = torch.from_numpy(g[1].object == 1) & both
+        assert float(err[ball[both]].max()) < 1e-2 and int(ball.sum()) >= 8
+        wrong, _ = sq.next_motion_vectors(g[1], g[2])  # the ball's motion left out
+        assert float((wrong - nxt)[:, ball].abs().max()) > 1.0
+    # Frame t+1 sees part of what frame t saw: some pixels leave or get covered.
+    assert 0.3 < float(next_valid.mean()) < 1.0
+
+
 @pytest.mark.mitsuba
 def test_warping_the_previous_reference_reproduces_the_current_one(
     tmp_path: Path, variant: str
@@ -482,10 +536,13 @@ def test_sequence_files_load_with_motion_and_the_manifest_records_frames(
         assert [p.name for p in probe_exr(noisy)] == ["spp1", "spp4"]
         parts = [load_buffers(noisy, part=p) for p in ("spp1", "spp4")]
         parts.append(load_buffers(out / fr["files"]["reference"]))
-        for fb in parts:
-            assert {"color", "color_var", "albedo", "normal", "depth", "position", "motion"} <= set(
+        motions = {"motion", "motion_valid", "motion_next", "motion_next_valid"}
+        for fb in parts:  # the canonical profile reads every motion buffer back by name
+            assert {"color", "color_var", "albedo", "normal", "depth", "position"} | motions <= set(
                 fb.names()
             )
+            for name in motions:
+                torch.testing.assert_close(fb[name], parts[0][name], rtol=0, atol=0)
             assert (
                 fb.attributes["mcdenoise:frame"] == f
                 and fb.attributes["mcdenoise:sequence"] == "ball"
@@ -501,6 +558,12 @@ def test_sequence_files_load_with_motion_and_the_manifest_records_frames(
             assert not parts[0]["motion"].any()
         else:
             assert float(parts[0]["motion"].abs().max()) > 0.1
+        nxt = parts[0]["motion_next_valid"]
+        assert float(nxt.mean()) == pytest.approx(fr["next_valid_fraction"], abs=1e-6)
+        if f == 2:  # the last frame: no next frame
+            assert not parts[0]["motion_next"].any() and not nxt.any()
+        else:
+            assert float(parts[0]["motion_next"].abs().max()) > 0.1 and float(nxt.mean()) > 0.3
     assert rec["render_seconds"] == pytest.approx(total, abs=1e-4)
     assert m["render_seconds"] == pytest.approx(total, abs=2e-3)
 
@@ -514,10 +577,10 @@ def test_sequences_are_deterministic_and_resume_frame_by_frame(
     generate(jobs, config(tmp_path / "a"))
     real = gen.write_frame
 
-    def killed_at_frame_2(rendered, motion, valid, cfg, seq, frame):
+    def killed_at_frame_2(rendered, motion, cfg, seq, frame):
         if frame == 2:
             raise KeyboardInterrupt
-        return real(rendered, motion, valid, cfg, seq, frame)
+        return real(rendered, motion, cfg, seq, frame)
 
     out = tmp_path / "b"
     monkeypatch.setattr(gen, "write_frame", killed_at_frame_2)
@@ -528,9 +591,9 @@ def test_sequences_are_deterministic_and_resume_frame_by_frame(
     stamps = [(out / frame_file("ball", f)).stat().st_mtime_ns for f in (0, 1)]
     rendered: list[int] = []
 
-    def counting(rendered_image, motion, valid, cfg, seq, frame):
+    def counting(rendered_image, motion, cfg, seq, frame):
         rendered.append(frame)
-        return real(rendered_image, motion, valid, cfg, seq, frame)
+        return real(rendered_image, motion, cfg, seq, frame)
 
     monkeypatch.setattr(gen, "write_frame", counting)
     assert generate(jobs, config(out)).rendered == ["ball"]

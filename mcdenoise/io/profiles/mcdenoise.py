@@ -15,6 +15,8 @@ visibility      ``visibility.Y``                            direct-light visibil
 motion          ``motion.X``, ``motion.Y``                  motion to the previous frame (pixels)
 motion_valid    ``motion_valid.Y``                          1 where the motion is trustworthy
 motion_next     ``motion_next.X``, ``motion_next.Y``        motion to the next frame (pixels)
+motion_next_    ``motion_next_valid.Y``                     1 where ``motion_next`` is
+ valid                                                      trustworthy
 <buffer>_var    ``<buffer>_var.<same suffixes>``            variance of the mean of <buffer>
 <buffer>_var    ``<buffer>_var.Y`` (1 channel)              luminance variance of the mean
 ==============  ==========================================  =====================================
@@ -47,6 +49,7 @@ SUFFIXES: dict[str, tuple[str, ...]] = {
     "motion": ("X", "Y"),
     "motion_valid": ("Y",),
     "motion_next": ("X", "Y"),
+    "motion_next_valid": ("Y",),
 }
 #: Value of the ``mcdenoise:layout`` attribute written by :func:`mcdenoise.io.save_buffers`.
 LAYOUT_VERSION = "1"
