@@ -45,6 +45,7 @@ from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.models.encoders import FEATURE_VARS, SOURCES
+from mcdenoise.prep.aux_prefilter import prefilter_aux
 from mcdenoise.prep.inputs import PREFILTER_ESTIMATED, prepare_inputs, quantile_subsampled
 
 #: Tensors of a prepared image and their channel counts.
@@ -62,6 +63,8 @@ PREFILTER_MODES = {
     "auto": "the features without a variance buffer (variance estimated from the feature)",
     "all": "every feature (its variance buffer when there is one, else estimated)",
     "off": "none: the features as the renderer wrote them",
+    "adaptive": "every feature; one without a variance buffer by its own estimate, not "
+    "capped by the colour's noise where the pixel mixes surfaces (prep/aux_prefilter.py)",
 }
 #: Default ``prefilter`` mode.
 DEFAULT_PREFILTER = "all"
@@ -158,13 +161,16 @@ def prepare_tensors(
         raise InputError(
             f"prefilter must be one of {', '.join(PREFILTER_MODES)}, got {prefilter!r}"
         )
+    adaptive = prefilter == "adaptive"
     inp = prepare_inputs(
         buffers,
         features=guides,
         prefilter=prefilter == "all",
-        estimate_missing=prefilter != "off",
+        estimate_missing=prefilter in ("all", "auto"),
         prefilter_settings=PREFILTER_ESTIMATED,
     )
+    if adaptive:
+        inp.features.update(prefilter_aux(inp.features, inp.feature_vars, inp.color, inp.color_var))
     missing = [g for g in guides if g not in inp.features]
     if missing:
         raise MissingFeatureError(

@@ -1,0 +1,174 @@
+"""Prefilter of noisy auxiliary features whose noise the colour does not show (pixel mixing).
+
+A feature written by a path tracer is the mean of the same few samples as the colour. Where
+those samples land on different surfaces (depth of field, motion blur, silhouettes, the
+background seen through a defocused edge) the feature is noisy, and the network multiplies its
+filtered irradiance back by the albedo it is given, so what is left of that noise comes back
+in the result (``prep/kpcn.py``). OIDN prefilters noisy auxiliary images for the same reason
+(Áfra, Intel Open Image Denoise: ``cleanAux`` off, the albedo and normal are denoised first).
+
+The one-scale prefilter of ``prep/inputs.py`` (variance-normalised NLM, 3×3 patches in a 7×7
+window, :data:`~mcdenoise.prep.inputs.PREFILTER_ESTIMATED`) steers each feature without a
+variance buffer by a variance estimated from its neighbourhood
+(:func:`~mcdenoise.prep.inputs.estimate_feature_variance`), **capped** by what the colour's
+relative noise allows (:func:`~mcdenoise.prep.inputs.feature_noise_cap`): the colour is about
+albedo × irradiance, so an albedo noisier than the colour would be texture, not noise. That
+premise fails where a pixel mixes a surface with the background or an emitter (albedo 0, yet
+radiance): on a defocused horizon or silhouette the albedo jumps between 0 and the surface's
+reflectance from sample to sample while the colour barely changes (a grey floor against a grey
+sky), so the cap is near 0 and the albedo stays as noisy as it was written. Measured on a
+depth-of-field scene focused near the camera (the ``dof`` sample spec with a 0.3 aperture
+focused at 2.6, 128², 4 spp, 512-spp reference): `kpcn` relMSE 0.089 with the capped
+prefilter, OIDN 0.0080; with OIDN's own prefiltered albedo and normal fed to `kpcn` 0.0071;
+with the reference features 0.0041. The albedo is the lever, and the cap is what holds it.
+
+What this module changes:
+
+* **Mixing pixels lose the cap.** A sample-averaged normal is shorter than 1 where the samples
+  of a pixel saw different orientations or nothing (the background's normal is 0): the
+  normal-length deficit ``1 - |n|`` is exactly the pixel-mixing measure the colour lacks. Where
+  it exceeds :data:`MIXING_THRESHOLD` (in a 3×3 neighbourhood), the feature's variance is its
+  own neighbourhood estimate, uncapped; elsewhere the cap stays, so an in-focus texture on a
+  flat surface (unit normals) is protected as before.
+* **Outliers in mixing pixels** (a lone floor sample in a pixel of sky: far from its 3×3 median
+  by more than :data:`OUTLIER_SIGMAS` times the estimated noise, which a median-based estimate
+  does not see in heavy-tailed mixing noise) get their squared excess as variance, as
+  :func:`~mcdenoise.prep.inputs.estimate_variance` does for fireflies in the colour; NLM then
+  averages them with their neighbours instead of keeping a patch that matches nothing (the
+  rare-patch effect of NLM, Buades, Coll & Morel 2005).
+* A feature with a variance buffer keeps it (it is the sample variance, no estimate to cap).
+
+The NLM is the same 7×7 window as before: the whole change costs a normal norm, a 3×3 max and
+a 3×3 median per feature. Measured alternatives on the same tuning renders (the four
+``data/samples`` scenes and three depth-of-field variants of the ``dof`` spec, not the
+out-of-distribution set), ``kpcn`` relMSE geometric mean over 14 images (4 and 16 spp): capped
+one-scale prefilter 0.0162; this module 0.0115; an 11×11 window on top 0.0110 (2.5× the
+prefilter's time, over the 4K time bound); a 2×2-mean pyramid of NLM levels merged where they
+agree within the noise (intersection of confidence intervals, Katkovnik 1999) 0.0127-0.0150
+whatever the gate (the coarse levels blur the partly defocused texture the reference keeps);
+a 3×3-median guide for the patch distances 0.0160 (4× better on the defocused horizon, 2-3×
+worse on in-focus checkerboards); no cap anywhere 0.0112 at 4 spp but 30-40 % worse at 16 spp
+on textured scenes (the neighbourhood estimate takes texture for noise).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from mcdenoise.filters.box import median3
+from mcdenoise.prep.inputs import (
+    PREFILTER_ESTIMATED,
+    estimate_feature_variance,
+    feature_noise_cap,
+    prefilter_feature,
+)
+
+#: Normal-length deficit ``1 - |n|`` above which a pixel counts as mixing surfaces (or a
+#: surface and the background): 0.05 is a 2×18° spread of two normals, or 5 % of the samples
+#: on the background.
+MIXING_THRESHOLD = 0.05
+#: Radius of the neighbourhood (max) over which the mixing measure is taken: the noisy albedo
+#: of a defocused edge spreads a pixel beyond where the normal shows it.
+MIXING_RADIUS = 1
+#: A mixing pixel farther than this many estimated standard deviations from its 3×3 median is
+#: an outlier (its squared excess becomes its variance).
+OUTLIER_SIGMAS = 4.0
+
+
+def mixing_mask(normal: Tensor, threshold: float = MIXING_THRESHOLD) -> Tensor:
+    """``(B, 1, H, W)`` bool: pixels within :data:`MIXING_RADIUS` of one whose sample-averaged
+    normal is shorter than ``1 - threshold``.
+
+    Args:
+        normal: ``(B, 3, H, W)`` per-pixel mean of unit shading normals (0 on the background).
+    """
+    deficit = (1.0 - normal.norm(dim=1, keepdim=True)).clamp_min(0.0)
+    k = 2 * MIXING_RADIUS + 1
+    return F.max_pool2d(deficit, k, stride=1, padding=MIXING_RADIUS) > threshold
+
+
+#: Rows of :func:`median_excess` at once (its 9 shifted copies of a 3840-pixel-wide, 3-channel
+#: strip of 128 rows take 53 MB; of the whole 4K frame 0.9 GB).
+STRIP_ROWS = 128
+
+
+def median_excess(feature: Tensor) -> Tensor:
+    """``(B, 1, H, W)`` channel mean of ``(f - median_3×3(f))²``, in strips of
+    :data:`STRIP_ROWS` rows (replicate border, as :func:`~mcdenoise.filters.box.median3`)."""
+    h = feature.shape[-2]
+    out = []
+    for y0 in range(0, h, STRIP_ROWS):
+        y1 = min(h, y0 + STRIP_ROWS)
+        a, b = max(0, y0 - 1), min(h, y1 + 1)  # one row of context each side
+        med = median3(feature[..., a:b, :])[..., y0 - a : y0 - a + (y1 - y0), :]
+        out.append((feature[..., y0:y1, :] - med).square().mean(dim=1, keepdim=True))
+    return torch.cat(out, dim=-2)
+
+
+def aux_feature_variance(
+    feature: Tensor, color: Tensor, color_var: Tensor, mixing: Tensor | None
+) -> Tensor:
+    """Variance ``(B, 1, H, W)`` that steers the prefilter of a feature without a variance
+    buffer: the neighbourhood estimate, capped by the colour's noise outside ``mixing``
+    pixels; in them uncapped, and an outlier's squared excess over its 3×3 median.
+
+    Args:
+        feature: ``(B, C, H, W)`` normalised feature.
+        color, color_var: ``(B, 3, H, W)`` sanitised colour and ``(B, 1, H, W)`` its variance
+            of the mean.
+        mixing: :func:`mixing_mask`, or ``None`` (no normal: the cap everywhere).
+    """
+    est = estimate_feature_variance(feature)
+    capped = torch.minimum(est, feature_noise_cap(color, color_var, feature))
+    if mixing is None:
+        return capped
+    v = torch.where(mixing, est, capped)
+    excess = median_excess(feature)
+    outlier = mixing & (excess > OUTLIER_SIGMAS**2 * est)
+    return torch.where(outlier, torch.maximum(v, excess), v)
+
+
+def prefilter_aux(
+    features: Mapping[str, Tensor],
+    variances: Mapping[str, Tensor],
+    color: Tensor,
+    color_var: Tensor,
+    settings: Mapping[str, object] = PREFILTER_ESTIMATED,
+) -> dict[str, Tensor]:
+    """Every feature prefiltered by variance-normalised NLM (``settings``): steered by its
+    variance buffer when ``variances`` has one, else by :func:`aux_feature_variance` with the
+    mixing measure of ``features["normal"]`` (raw, before this prefilter).
+
+    Args:
+        features: name -> ``(B, C, H, W)`` normalised, not yet prefiltered feature.
+        variances: name -> ``(B, 1 or C, H, W)`` variance of the mean, for those that have one.
+        color, color_var: as :func:`aux_feature_variance`.
+
+    Returns:
+        name -> prefiltered feature, same shapes and dtypes.
+    """
+    normal = features.get("normal")
+    mixing = mixing_mask(normal) if normal is not None and normal.shape[1] == 3 else None
+    out = {}
+    for name, f in features.items():
+        v = variances.get(name)
+        if v is None:
+            v = aux_feature_variance(f, color, color_var, mixing)
+        out[name] = prefilter_feature(f, v, settings)
+    return out
+
+
+__all__ = [
+    "MIXING_RADIUS",
+    "MIXING_THRESHOLD",
+    "OUTLIER_SIGMAS",
+    "STRIP_ROWS",
+    "aux_feature_variance",
+    "median_excess",
+    "mixing_mask",
+    "prefilter_aux",
+]
