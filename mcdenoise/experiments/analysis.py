@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from mcdenoise.eval.metrics import METRICS
 from mcdenoise.eval.results import decode_float, jsonable
+from mcdenoise.eval.temporal import metric_spec
 from mcdenoise.experiments.dataset import Level, SceneData
 from mcdenoise.experiments.entries import MethodEntry
 from mcdenoise.experiments.quality import (
@@ -127,6 +127,12 @@ class SceneSummary:
     equal_time: list[EqualTimeRow] = field(default_factory=list)
     #: where the noisy curve rises with spp: (spp_a, e_a, spp_b, e_b), see ``noisy_rises``
     rises: list[tuple[int, float, int, float]] = field(default_factory=list)
+    #: a sequence's frames as (noisy file, reference file); ``()`` for a still image
+    frames: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def is_sequence(self) -> bool:
+        return bool(self.frames)
 
     @property
     def flagged(self) -> bool:
@@ -187,6 +193,7 @@ class SceneSummary:
             "budgets": list(self.budgets),
             "pareto": [p.to_dict() for p in self.pareto],
             "equal_time": [r.to_dict() for r in self.equal_time],
+            **({"frames": [list(f) for f in self.frames]} if self.frames else {}),
         }
 
 
@@ -316,8 +323,11 @@ class ExperimentResult:
                 ),
                 "provenance": self.provenance,
                 "spec": self.spec.to_dict(),
-                "definitions": definitions(self.metrics),
-                "metrics": {m: METRICS[m].describe() for m in self.metrics},
+                "definitions": {
+                    **definitions(self.metrics),
+                    **(SEQUENCE_DEFINITIONS if self.is_sequences else {}),
+                },
+                "metrics": {m: metric_spec(m).describe() for m in self.metrics},
                 "methods": [e.to_dict() for e in self.entries],
                 "skipped_methods": [{"label": k, "reason": v} for k, v in self.skipped.items()],
                 "strip_spp": self.strip_spp,
@@ -341,8 +351,25 @@ class ExperimentResult:
                 "overall_without_flagged": (
                     None if self.without_flagged is None else self.without_flagged.to_dict()
                 ),
+                **({"temporal": self.temporal_dict()} if self.is_sequences else {}),
             }
         )
+
+    @property
+    def is_sequences(self) -> bool:
+        """The scenes are sequences (``[render] frames``)."""
+        return any(s.is_sequence for s in self.scenes)
+
+    def temporal_dict(self) -> dict[str, Any]:
+        """The over-sequences table of per-frame and temporal errors against time per frame
+        (:func:`mcdenoise.experiments.sequences.temporal_rows`)."""
+        from mcdenoise.experiments.sequences import TEMPORAL_OVERALL, temporal_rows
+
+        return {
+            "warmup_frames": self.spec.warmup_frames,
+            "definition": TEMPORAL_OVERALL,
+            "rows": temporal_rows(self),
+        }
 
 
 def definitions(metrics: Sequence[str]) -> dict[str, str]:
@@ -389,11 +416,50 @@ def definitions(metrics: Sequence[str]) -> dict[str, str]:
             f"{FLOOR_FACTOR:g}x the reference's noise floor): fireflies dominate its error; the "
             "overall findings are also given without the flagged scenes"
         ),
-        "metrics": ", ".join(f"{METRICS[m].label}: {METRICS[m].space}" for m in metrics),
+        "metrics": ", ".join(f"{metric_spec(m).label}: {metric_spec(m).space}" for m in metrics),
     }
 
 
-def _noise_floor(reference: Path) -> tuple[float | None, str | None]:
+#: Added to :func:`definitions` when the experiment's scenes are sequences.
+SEQUENCE_DEFINITIONS = {
+    "sequences": (
+        "each scene is a sequence of frames; one (scene, spp, method) runs the method over "
+        "the whole sequence, a temporal method with its history, a per-frame method on each "
+        "frame alone; every time is per frame"
+    ),
+    "render_seconds per frame": (
+        "mean over the frames of each frame's cumulative render seconds at this level, JIT "
+        "excluded frame by frame"
+    ),
+    "denoise_seconds per frame": (
+        "the method's seconds summed over the frames of one run and divided by their number; "
+        "median over the timed runs of the whole sequence"
+    ),
+    "per-frame metrics": (
+        "still metrics of every frame against its reference, averaged over the frames past "
+        "the warm-up (the first warmup_frames frames, reported apart as 'warm-up')"
+    ),
+    "temporal metrics": (
+        "temporal relMSE, tPSNR and tRMAE of mcdenoise.eval.temporal (frame differences of "
+        "the output against the reference's), averaged over the frame pairs past the warm-up"
+    ),
+}
+
+
+def _noise_floor(scene: SceneData) -> tuple[float | None, str | None]:
+    """The reference's noise floor; of a sequence, the mean of its frames' floors."""
+    if scene.is_sequence:
+        floors = []
+        for f in scene.frames:
+            floor, note = _floor_of(f.reference)
+            if floor is None:
+                return None, note
+            floors.append(floor)
+        return float(np.mean(floors)), None
+    return _floor_of(scene.reference)
+
+
+def _floor_of(reference: Path) -> tuple[float | None, str | None]:
     from mcdenoise.io import load_buffers
 
     buffers = load_buffers(reference)
@@ -450,7 +516,7 @@ def assemble(
     summaries: list[SceneSummary] = []
     for scene in scenes:
         mine = [r for r in recs if r["scene"] == scene.id]
-        floor, floor_note = _noise_floor(scene.reference)
+        floor, floor_note = _noise_floor(scene)
         curve = _noisy_curve(mine)
         noisy_at = {r["spp"]: relmse_of(r) for r in mine if r["method"] == NOISY}
         for r in mine:
@@ -484,6 +550,7 @@ def assemble(
                 pareto=front,
                 equal_time=equal_time(points, budgets, noisy_label=NOISY),
                 rises=noisy_rises(curve, floor) if curve is not None else [],
+                frames=tuple((str(f.noisy), str(f.reference)) for f in scene.frames),
             )
         )
         if curve is None:
@@ -516,7 +583,7 @@ def assemble(
                 + "; ".join(reasons[:3])
                 + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
             )
-    files = sorted({Path(s.noisy) for s in scenes} | {Path(s.reference) for s in scenes})
+    files = sorted({p for s in scenes for p in s.files()})
     prov = provenance(data_root=data_folder, files=files)
     if machine_at_start is not None:
         prov["machine_at_start"] = dict(machine_at_start)

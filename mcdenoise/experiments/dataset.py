@@ -11,6 +11,14 @@ Render time of a level, as used by the experiment: the level's cumulative ``rend
 minus the JIT compilation seconds of every increment up to it (Dr.Jit compiles kernels on
 the first pass of each size; that is a one-off cost of the process, not of the samples).
 Scene loading (``load_seconds``) is not included either.
+
+Sequences (``[render] frames = N``; layout in :mod:`mcdenoise.render.layout`):
+``<id>/frame_0000.exr`` (parts ``spp<n>``, with the motion buffers) and
+``<id>/ref/frame_0000.exr``; a :class:`SceneData` then lists its :class:`Frame` files, and
+the render seconds of a level are *per frame*: the mean over the frames of each frame's
+render seconds, JIT excluded as above (each frame is a render of its own, so the JIT share of
+every frame is left out). ``[scenes.animate.<name>]`` of the experiment is merged into that
+scene spec's TOML before it is parsed (:func:`render_jobs`).
 """
 
 from __future__ import annotations
@@ -44,6 +52,14 @@ class Level:
 
 
 @dataclass(frozen=True)
+class Frame:
+    """One frame of a sequence: its noisy file (one part per level) and its reference."""
+
+    noisy: Path
+    reference: Path
+
+
+@dataclass(frozen=True)
 class SceneData:
     """One rendered image of the data set: files, levels, seed, and a fingerprint of how it
     was made (spec, seed, render settings, variant), which keys cached results."""
@@ -57,6 +73,19 @@ class SceneData:
     variant: str | None
     fingerprint: str
     record: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    #: the frames of a sequence, in order (``()`` for a still image; then ``noisy`` and
+    #: ``reference`` are the sequence's folder and its ``ref`` folder)
+    frames: tuple[Frame, ...] = ()
+
+    @property
+    def is_sequence(self) -> bool:
+        return bool(self.frames)
+
+    def files(self) -> list[Path]:
+        """Every file of the image or sequence (what the data hash covers)."""
+        if not self.frames:
+            return [self.noisy, self.reference]
+        return [p for f in self.frames for p in (f.noisy, f.reference)]
 
     def level(self, spp: int) -> Level:
         for lv in self.levels:
@@ -77,9 +106,44 @@ def render_folder(spec: ExperimentSpec, out: str | os.PathLike[str]) -> Path:
 def render_jobs(spec: ExperimentSpec) -> list[Any]:
     """The :class:`~mcdenoise.render.jobs.ImageJob` list of the spec's scenes (curated
     specs, then ``random`` procedural scenes), seeded by ``[render] seed``."""
-    from mcdenoise.render.jobs import make_jobs
+    from mcdenoise.render.jobs import jobs_from_random, jobs_from_specs
 
-    return make_jobs(spec.scene_specs, random=spec.random or None, seed=spec.seed)
+    jobs = jobs_from_specs([_scene_spec(spec, p) for p in spec.scene_specs], seed=spec.seed)
+    if spec.random:
+        jobs += jobs_from_random(
+            spec.random, spec.seed, start=len(jobs), taken=[j.id for j in jobs]
+        )
+    return jobs
+
+
+def _scene_spec(spec: ExperimentSpec, path: Path) -> Any:
+    """The scene spec at ``path``, with the experiment's ``[scenes.animate.<name>]`` merged
+    into its TOML (``animation`` replaces its ``[animation]``, each ``move`` sets
+    ``objects[i].motion``) and validated by :func:`mcdenoise.render.spec.parse_spec`."""
+    import tomllib
+
+    from mcdenoise.render.spec import SpecError, load_spec, parse_spec
+
+    scene = load_spec(path)
+    extra = spec.animate.get(scene.name)
+    if not extra:
+        return scene
+    data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    if "animation" in extra:
+        data["animation"] = dict(extra["animation"])
+    objects = data.get("objects", [])
+    for j, move in enumerate(extra.get("move", [])):
+        i = int(move["object"])
+        if i >= len(objects):
+            raise ExperimentError(
+                f"{spec.source}: scenes.animate.{scene.name}.move[{j}].object: {scene.name} "
+                f"has {len(objects)} objects (0 to {len(objects) - 1}), got {i}"
+            )
+        objects[i] = {**objects[i], "motion": {"translate": move["translate"]}}
+    try:
+        return parse_spec(data, source=str(path), base=Path(path).parent)
+    except SpecError as err:
+        raise ExperimentError(f"{spec.source}: scenes.animate.{scene.name}: {err}") from None
 
 
 def prepare_data(
@@ -113,6 +177,7 @@ def prepare_data(
         pass_spp=spec.pass_spp,
         seed=spec.seed,
         progress=progress,
+        frames=spec.frames,
     )
     if folder.is_dir():
         for name, m in shard_manifests(folder).items():
@@ -167,23 +232,36 @@ def _levels(record: Mapping[str, Any], where: str) -> list[Level]:
     return out
 
 
+def folder_frames(folder: str | os.PathLike[str]) -> int | None:
+    """The frame count of a render folder's sequences (``None``: it holds still images)."""
+    frames = (_manifest(Path(folder)).get("settings") or {}).get("frames")
+    return None if frames is None else int(frames)
+
+
 def load_dataset(
     folder: str | os.PathLike[str],
     ids: Sequence[str] | None = None,
     spp: Sequence[int] | None = None,
+    *,
+    sequences: bool = False,
 ) -> list[SceneData]:
     """Read the images ``ids`` (default: all) of a render folder, restricted to the levels
-    ``spp`` (default: all of the folder's levels).
+    ``spp`` (default: all of the folder's levels); with ``sequences``, the folder must hold
+    sequences (``--frames``) and each :class:`SceneData` lists its frames.
 
     Raises:
-        ExperimentError: no manifest, an id or level missing, a sequence folder, or a file
-            missing on disk.
+        ExperimentError: no manifest, an id or level missing, a sequence folder without
+            ``sequences`` (or a still folder with it), or a file missing on disk.
     """
     root = Path(folder).resolve()
     manifest = _manifest(root)
     settings = manifest.get("settings") or {}
-    if settings.get("frames") is not None:
-        raise ExperimentError(f"{root}: holds sequences (--frames); experiments use still images")
+    if settings.get("frames") is not None and not sequences:
+        raise ExperimentError(
+            f"{root}: holds sequences (--frames); set [render] frames in the experiment spec"
+        )
+    if settings.get("frames") is None and sequences:
+        raise ExperimentError(f"{root}: holds still images, not sequences (--frames)")
     have = [int(v) for v in settings.get("spp", [])]
     wanted = list(spp) if spp is not None else have
     missing = [v for v in wanted if v not in have]
@@ -199,6 +277,9 @@ def load_dataset(
         rec = records.get(image_id)
         if rec is None:
             raise ExperimentError(f"{root}: image {image_id!r} is not in the manifest")
+        if sequences:
+            scenes.append(_sequence(root, rec, settings, wanted))
+            continue
         files = rec.get("files") or {}
         noisy, ref = root / str(files.get("noisy", "")), root / str(files.get("reference", ""))
         for p in (noisy, ref):
@@ -221,3 +302,53 @@ def load_dataset(
     if not scenes:
         raise ExperimentError(f"{root}: no image to evaluate")
     return scenes
+
+
+def _sequence(
+    root: Path, rec: Mapping[str, Any], settings: Mapping[str, Any], wanted: Sequence[int]
+) -> SceneData:
+    """A sequence record of the manifest as :class:`SceneData`: its frames, and its levels
+    with the render seconds *per frame* (mean over the frames, JIT excluded frame by frame)."""
+    image_id = str(rec.get("id"))
+    where = f"{root}: sequence {image_id!r}"
+    count = int(settings.get("frames") or 0)
+    records = rec.get("frames") or []
+    if not rec.get("complete") or len(records) != count:
+        raise ExperimentError(
+            f"{where}: {len(records)} of {count} frames finished; render it again to complete it"
+        )
+    frames: list[Frame] = []
+    per_frame: list[list[Level]] = []
+    for fr in records:
+        files = fr.get("files") or {}
+        frame = Frame(root / str(files.get("noisy", "")), root / str(files.get("reference", "")))
+        for p in (frame.noisy, frame.reference):
+            if not p.is_file():
+                raise ExperimentError(f"{where}: file {p} is missing")
+        frames.append(frame)
+        per_frame.append([lv for lv in _levels(fr, where) if lv.spp in wanted])
+    levels = []
+    for k, lv in enumerate(sorted(per_frame[0], key=lambda lv: lv.spp)):
+        same = [sorted(f, key=lambda lv: lv.spp)[k] for f in per_frame]
+        levels.append(
+            Level(
+                lv.spp,
+                lv.part,
+                sum(x.render_seconds for x in same) / len(same),
+                round(sum(x.jit_seconds for x in same) / len(same), 6),
+            )
+        )
+    first = records[0]
+    folder = root / str((rec.get("files") or {}).get("folder", image_id))
+    return SceneData(
+        id=image_id,
+        noisy=folder,
+        reference=folder / "ref",
+        levels=tuple(levels),
+        reference_spp=(first.get("reference") or {}).get("spp", settings.get("ref_spp")),
+        seed=rec.get("seed"),
+        variant=rec.get("variant"),
+        fingerprint=_fingerprint(rec, settings),
+        record=rec,
+        frames=tuple(frames),
+    )

@@ -236,6 +236,7 @@ def plot_error_vs_time(
     floor: float | None = None,
     title: str = "",
     ylabel: str = "relMSE",
+    xlabel: str = "total seconds: render + denoise (log)",
 ) -> None:
     """relMSE vs total seconds, log-log, one line per label through its spp levels.
 
@@ -269,7 +270,7 @@ def plot_error_vs_time(
     ax.set_yscale("log")
     _ylim(ax, ys, floor)
     _axes(ax, x_base=10)
-    ax.set_xlabel("total seconds: render + denoise (log)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(f"{ylabel} (log)")
     ax.set_title(title, fontsize=10)
     _legend(ax, len(series) + 2)

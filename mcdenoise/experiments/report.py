@@ -31,10 +31,11 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import McdenoiseError
-from mcdenoise.eval.metrics import METRICS, relmse_map
+from mcdenoise.eval.metrics import relmse_map
 from mcdenoise.eval.preview import choose_crop, crop
 from mcdenoise.eval.report import error_scale, write_png
 from mcdenoise.eval.results import encode_float
+from mcdenoise.eval.temporal import metric_spec
 from mcdenoise.eval.tonemap import auto_exposure, colorbar, display, false_color
 from mcdenoise.experiments.analysis import (
     ExperimentResult,
@@ -84,7 +85,11 @@ CSV_TAIL = (
     "params",
 )
 #: Names of the PNGs this module writes (pruned when no longer shown).
-_OWN_IMAGE = re.compile(r"^(plot|strip)_[A-Za-z0-9._-]+\.png$")
+_OWN_IMAGE = re.compile(r"^(plot|strip)_[A-Za-z0-9._-]+\.(png|gif)$")
+#: Columns of results.csv added at its end when the scenes are sequences.
+CSV_SEQUENCE = ("frames", "warmup_frames", "relmse_warmup", "trelmse_warmup")
+#: Columns of frames.csv (sequences: one row per record and frame) before the metrics.
+FRAMES_CSV_HEAD = ("scene", "method", "spp", "frame", "index", "warmup", "denoise_seconds")
 _MAX_ZOOM = 8
 
 HOW_TO_READ = (
@@ -137,6 +142,9 @@ def write_experiment_report(
         paths["images"].mkdir(parents=True, exist_ok=True)
         write_json(result, paths["json"])
         write_csv(result, paths["csv"])
+        if result.is_sequences:
+            paths["frames_csv"] = out / "frames.csv"
+            write_frames_csv(result, paths["frames_csv"])
         page = render_html(result, out)
         write_text_atomic(paths["html"], page)
         shown = {html.unescape(n) for n in re.findall(r'src="images/([^"/]+)"', page)}
@@ -171,7 +179,8 @@ def _cell(value: Any) -> str:
 
 def csv_columns(result: ExperimentResult) -> list[str]:
     """Header of results.csv."""
-    return [*CSV_HEAD, *result.metrics, *CSV_TAIL]
+    extra = CSV_SEQUENCE if result.is_sequences else ()
+    return [*CSV_HEAD, *result.metrics, *CSV_TAIL, *extra]
 
 
 def write_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
@@ -191,7 +200,26 @@ def write_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
         row += [eq.get("spp"), eq.get("seconds"), eq.get("extrapolated"), eq.get("speedup")]
         row += [r.get("failed"), r.get("error"), r.get("reason"), r.get("output")]
         row.append(r.get("params") or None)
+        if result.is_sequences:
+            warm = r.get("warmup_metrics") or {}
+            row += [r.get("frames_count"), r.get("warmup_frames")]
+            row += [warm.get("relmse"), warm.get("trelmse")]
         w.writerow([_cell(v) for v in row])
+    write_text_atomic(path, buf.getvalue())
+
+
+def write_frames_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
+    """Sequences: one row per (scene, spp, method, frame) with the frame's denoise seconds
+    (the last timed run) and metrics (temporal ones: the pair ending at that frame)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([*FRAMES_CSV_HEAD, *result.metrics])
+    for r in result.records:
+        for f in r.get("frames") or []:
+            row = [r["scene"], r["method"], r["spp"], f.get("frame"), f.get("index")]
+            row += [f.get("warmup"), f.get("seconds")]
+            row += [(f.get("metrics") or {}).get(m) for m in result.metrics]
+            w.writerow([_cell(v) for v in row])
     write_text_atomic(path, buf.getvalue())
 
 
@@ -236,6 +264,18 @@ def _run_table(result: ExperimentResult) -> str:
     data_hash = str(prov.get("data_hash", ""))[:16]
     rows = [
         ("Scenes", f"{len(result.scenes)}: {_esc(', '.join(s.id for s in result.scenes))}"),
+        *(
+            [
+                (
+                    "Sequences",
+                    f"{_esc(', '.join(sorted({str(len(s.frames)) for s in result.scenes})))} "
+                    f"frames each; the first {result.spec.warmup_frames} reported apart "
+                    "(warm-up); times and errors are per frame",
+                )
+            ]
+            if result.is_sequences
+            else []
+        ),
         (
             "spp ladder",
             f"{_esc(ladder)} (progressive: each level reuses the samples of the lower ones); "
@@ -326,7 +366,7 @@ def _scene_table(result: ExperimentResult, scene: SceneSummary) -> str:
 def _metric(name: str, value: Any) -> str:
     """A metric value for a table: signed ones (mean bias) in percent."""
     v = number(value)
-    if v is not None and math.isfinite(v) and METRICS[name].signed:
+    if v is not None and math.isfinite(v) and metric_spec(name).signed:
         from mcdenoise.eval.report import percent
 
         return percent(v)
@@ -359,7 +399,7 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
     head = [
         "method",
         "spp",
-        *(_esc(METRICS[m].label) for m in shown),
+        *(_esc(metric_spec(m).label) for m in shown),
         "render s",
         "denoise s (runs)",
         "device",
@@ -457,7 +497,8 @@ def _scene_section(
 ) -> str:
     c = scene.curve
     facts = [
-        f"reference {_esc(scene.reference_spp)} spp, seed {_esc(scene.seed)}, "
+        (f"sequence of {len(scene.frames)} frames, " if scene.is_sequence else "")
+        + f"reference {_esc(scene.reference_spp)} spp, seed {_esc(scene.seed)}, "
         f"{_esc(scene.variant)}",
         (
             f"reference noise floor {_g(scene.noise_floor)} (expected relMSE of the reference "
@@ -494,6 +535,13 @@ def _scene_section(
     summary = f"<summary>Equal-time table of {_esc(scene.id)}</summary>"
     parts.append(f"<details>{summary}{equal_time_table(scene.equal_time)}</details>")
     parts.append(_all_metrics_table(result, scene))
+    if scene.is_sequence:
+        from mcdenoise.experiments.temporal_report import scene_images, scene_table
+
+        parts.append(f"<h3>Per frame and over time: {_esc(scene.id)}</h3>")
+        parts.append(scene_table(result, scene))
+        parts.append(scene_images(result, scene, index, out))
+        return "".join(parts)
     parts.append(f"<h3>Images at {result.strip_spp} spp</h3>")
     parts.append(_strip(result, scene, index, out))
     return "".join(parts)
@@ -530,15 +578,16 @@ def _provenance(result: ExperimentResult) -> str:
         ("spec", result.spec.source),
     ]
     body = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in rows)
-    from mcdenoise.experiments.analysis import definitions
+    from mcdenoise.experiments.analysis import SEQUENCE_DEFINITIONS, definitions
 
-    defs = "".join(
-        f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>"
-        for k, v in definitions(result.metrics).items()
-    )
+    every = {
+        **definitions(result.metrics),
+        **(SEQUENCE_DEFINITIONS if result.is_sequences else {}),
+    }
+    defs = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in every.items())
     metric_rows = "".join(
-        f"<tr><th>{_esc(METRICS[m].label)}</th>"
-        f"<td>{_esc(METRICS[m].definition)}; {_esc(METRICS[m].space)}</td></tr>"
+        f"<tr><th>{_esc(metric_spec(m).label)}</th>"
+        f"<td>{_esc(metric_spec(m).definition)}; {_esc(metric_spec(m).space)}</td></tr>"
         for m in result.metrics
     )
     return (
@@ -563,6 +612,8 @@ def render_html(result: ExperimentResult, out_dir: str | os.PathLike[str]) -> st
         '<a href="#equal-quality">Equal quality</a>',
         '<a href="#statistics">Statistics</a>',
     ]
+    if result.is_sequences:
+        nav.append('<a href="#sequences">Sequences</a>')
     nav += [f'<a href="#scene-{_esc(_slug(s.id))}">{_esc(s.id)}</a>' for s in result.scenes]
     nav += ['<a href="#definitions">Definitions</a>', '<a href="#provenance">Provenance</a>']
     parts = []
@@ -575,6 +626,10 @@ def render_html(result: ExperimentResult, out_dir: str | os.PathLike[str]) -> st
     if result.notes:
         parts.append('<div class="warn">' + "<br>".join(_esc(n) for n in result.notes) + "</div>")
     parts += overall_sections(result, out, reason)
+    if result.is_sequences:
+        from mcdenoise.experiments.temporal_report import temporal_section
+
+        parts.append(temporal_section(result, out, reason is None))
     for i, scene in enumerate(result.scenes):
         parts.append(_scene_section(result, scene, i, out, reason is None))
     parts.append(_provenance(result))

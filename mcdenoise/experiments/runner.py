@@ -23,6 +23,11 @@ resolved parameters, metrics, repetitions, warm-up, device, threads, mcdenoise v
 run again, so an interrupted experiment (Ctrl-C, a crash) continues where it stopped and a
 finished one is only re-assembled. Delete ``DIR/work`` to time everything again.
 
+Sequences (``[render] frames = N``): a unit is one (sequence, spp level, method), run over
+the whole sequence with the times per frame and the per-frame and temporal metrics of
+:mod:`mcdenoise.eval.temporal` (:mod:`~mcdenoise.experiments.sequences`); its outputs are a
+folder of frames, ``DIR/outputs/<scene>_spp<n>_<label>/``. Resume works the same way.
+
 A method that refuses an input (a :class:`~mcdenoise.errors.McdenoiseError`, e.g. a buffer it
 requires is missing in an AO scene) gives a unit with ``error`` set, shown in the report;
 any other exception stops the run (finished units stay valid).
@@ -98,11 +103,9 @@ class Unit:
         )
 
     def output_path(self, out: Path) -> Path:
-        return (
-            out
-            / OUTPUTS
-            / f"{slug(self.scene.id)}_spp{self.level.spp}_{slug(self.entry.label)}.exr"
-        )
+        """The output file, or for a sequence the folder of its output frames."""
+        name = f"{slug(self.scene.id)}_spp{self.level.spp}_{slug(self.entry.label)}"
+        return out / OUTPUTS / (name if self.scene.is_sequence else f"{name}.exr")
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,7 @@ class RunSettings:
     device: str
     threads: int | None
     save_output: Callable[[int], bool]
+    warmup_frames: int = 2  # sequences: first frames reported apart
 
 
 def fingerprint(unit: Unit, settings: RunSettings) -> str:
@@ -141,6 +145,9 @@ def fingerprint(unit: Unit, settings: RunSettings) -> str:
         "device": settings.device if not unit.entry.is_noisy else None,
         "threads": settings.threads if not unit.entry.is_noisy else None,
     }
+    if unit.scene.is_sequence:  # a still unit's fingerprint is unchanged
+        payload["frames"] = len(unit.scene.frames)
+        payload["warmup_frames"] = settings.warmup_frames
     text = json.dumps(jsonable(payload), sort_keys=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:20]
 
@@ -188,25 +195,7 @@ def run_unit(
     against ``reference`` (``(3, H, W)`` float32 linear HDR RGB); return its record (not yet
     written)."""
     entry, level, scene = unit.entry, unit.level, unit.scene
-    record: dict[str, Any] = {
-        "schema": UNIT_SCHEMA,
-        "fingerprint": fingerprint(unit, settings),
-        "scene": scene.id,
-        "spp": level.spp,
-        "method": entry.label,
-        "base_method": entry.method,
-        "params": entry.params(),
-        "input": {"file": str(scene.noisy.resolve()), "part": level.part},
-        "render_seconds": level.render_seconds,
-        "render_jit_seconds_excluded": level.jit_seconds,
-        "denoise_seconds": 0.0,
-        "timing": None,
-        "device": None,
-        "threads": None,
-        "output": None,
-        "error": None,
-        "notes": [],
-    }
+    record = _base_record(unit, settings)
     ref_name = str(scene.reference)
     if entry.is_noisy:
         image = buffers["color"].numpy()
@@ -231,15 +220,7 @@ def run_unit(
                 once, repetitions=settings.repetitions, warmup=settings.warmup
             )
         except McdenoiseError as err:
-            record["error"] = " ".join(str(err).split())
-            record["total_seconds"] = None
-            record["metrics"] = dict.fromkeys(settings.metrics)
-            record["unavailable"] = {}
-            record["failed"] = True
-            record["reason"] = f"could not run: {record['error']}"
-            record["bad_pixels"] = 0
-            record["finished"] = _now()
-            return record
+            return _failed(record, " ".join(str(err).split()), settings)
         record["denoise_seconds"] = timing.median
         record["timing"] = timing.to_dict()
         record["device"] = timing.device
@@ -258,6 +239,69 @@ def run_unit(
     record["failed"] = values.failed
     record["reason"] = values.reason
     record["bad_pixels"] = values.bad_pixels
+    record["finished"] = _now()
+    return record
+
+
+def _failed(record: dict[str, Any], error: str, settings: RunSettings) -> dict[str, Any]:
+    """``record`` as a unit whose method refused its input with ``error``."""
+    record["error"] = error
+    record["total_seconds"] = None
+    record["metrics"] = dict.fromkeys(settings.metrics)
+    record["unavailable"] = {}
+    record["failed"] = True
+    record["reason"] = f"could not run: {error}"
+    record["bad_pixels"] = 0
+    record["finished"] = _now()
+    return record
+
+
+def _base_record(unit: Unit, settings: RunSettings) -> dict[str, Any]:
+    """The fields every unit record starts with (what ran, on what, from which input)."""
+    entry, level, scene = unit.entry, unit.level, unit.scene
+    return {
+        "schema": UNIT_SCHEMA,
+        "fingerprint": fingerprint(unit, settings),
+        "scene": scene.id,
+        "spp": level.spp,
+        "method": entry.label,
+        "base_method": entry.method,
+        "params": entry.params(),
+        "input": {"file": str(scene.noisy.resolve()), "part": level.part},
+        "render_seconds": level.render_seconds,
+        "render_jit_seconds_excluded": level.jit_seconds,
+        "denoise_seconds": 0.0,
+        "timing": None,
+        "device": None,
+        "threads": None,
+        "output": None,
+        "error": None,
+        "notes": [],
+    }
+
+
+def run_sequence_unit(
+    unit: Unit,
+    frames: Sequence[Any],
+    references: Sequence[np.ndarray],
+    out: Path,
+    settings: RunSettings,
+    device: Any,
+) -> dict[str, Any]:
+    """:func:`run_unit` for a sequence (:func:`mcdenoise.experiments.sequences.run_sequence_unit`)."""
+    from mcdenoise.experiments.sequences import run_sequence_unit as run
+
+    record = run(
+        unit,
+        frames,
+        references,
+        out,
+        settings,
+        device,
+        base=lambda: _base_record(unit, settings),
+        fail=lambda rec, err: _failed(rec, err, settings),
+        relative=_relative,
+    )
     record["finished"] = _now()
     return record
 
@@ -375,14 +419,15 @@ def run_units(
             ref_key = f"ref:{scene.id}"
             if ref_key not in loaded:
                 loaded.clear()
-                loaded[ref_key] = _load_color(scene.reference)[0]
+                loaded[ref_key] = _load_reference(scene)
             level_key = f"{scene.id}#{level.part}"
             if level_key not in loaded:
                 for k in [k for k in loaded if not k.startswith("ref:")]:
                     del loaded[k]
-                loaded[level_key] = _load_color(scene.noisy, level.part)[1]
+                loaded[level_key] = _load_level(scene, level.part)
             bar.set_postfix_str(f"{scene.id} {level.spp} spp {unit.entry.label}")
-            record = run_unit(unit, loaded[level_key], loaded[ref_key], out, settings, device)
+            run = run_sequence_unit if scene.is_sequence else run_unit
+            record = run(unit, loaded[level_key], loaded[ref_key], out, settings, device)
             path = unit.path(out)
             path.parent.mkdir(parents=True, exist_ok=True)
             text = json.dumps(jsonable(record), indent=1, ensure_ascii=False, allow_nan=False)
@@ -393,10 +438,30 @@ def run_units(
     return records
 
 
+def _load_reference(scene: SceneData) -> Any:
+    """The reference colour ``(3, H, W)``, or for a sequence the list of its frames'."""
+    if scene.is_sequence:
+        return [_load_color(f.reference)[0] for f in scene.frames]
+    return _load_color(scene.reference)[0]
+
+
+def _load_level(scene: SceneData, part: str) -> Any:
+    """The level ``part`` as ``FeatureBuffers``, or for a sequence the list of its frames'."""
+    if scene.is_sequence:
+        from mcdenoise.experiments.sequences import load_frames
+
+        return load_frames([f.noisy for f in scene.frames], part)
+    return _load_color(scene.noisy, part)[1]
+
+
 def _output_present(record: Mapping[str, Any], out: Path) -> bool:
     output = record.get("output")
     if not output:
         return True
+    if record.get("output_frames"):
+        from mcdenoise.experiments.sequences import outputs_present
+
+        return outputs_present(record, out)
     p = Path(output)
     return (p if p.is_absolute() else out / p).is_file()
 
@@ -427,6 +492,8 @@ def run_experiment(
     """
     from mcdenoise.denoise import resolve_device
     from mcdenoise.eval.metrics import resolve_metrics
+    from mcdenoise.eval.temporal import resolve_sequence_metrics
+    from mcdenoise.experiments.dataset import folder_frames
     from mcdenoise.progress import progress_bar
 
     root = Path(out)
@@ -436,9 +503,13 @@ def run_experiment(
         raise ExperimentError(
             f"cannot create the experiment folder {root}: {err.strerror or err}"
         ) from None
-    names = resolve_metrics(metrics if metrics is not None else spec.metrics)
+    sequences = (spec.frames if spec.folder is None else folder_frames(spec.folder)) is not None
+    wanted = metrics if metrics is not None else spec.metrics
+    names = resolve_sequence_metrics(wanted) if sequences else resolve_metrics(wanted)
     if "relmse" not in names:
         raise ExperimentError("the metrics must include relmse (the curves and tables use it)")
+    if sequences and "trelmse" not in names:
+        raise ExperimentError("the metrics of sequences must include trelmse (the tables use it)")
     entries, skipped = plan_methods(spec)
     device = resolve_device(spec.device)
     summary = RunSummary(name=spec.name)
@@ -447,7 +518,10 @@ def run_experiment(
         summary.rendered = list(rendered.rendered)
         summary.render_skipped = list(rendered.skipped)
     scenes = load_dataset(
-        folder, ids, spec.spp if (spec.folder is None or spec.spp_given) else None
+        folder,
+        ids,
+        spec.spp if (spec.folder is None or spec.spp_given) else None,
+        sequences=sequences,
     )
     levels = [lv.spp for lv in scenes[0].levels]
     strip = spec.strip_level(levels)
@@ -460,6 +534,7 @@ def run_experiment(
         device=str(device),
         threads=spec.threads,
         save_output=lambda spp: spec.outputs == "all" or spp == strip,
+        warmup_frames=spec.warmup_frames,
     )
     units = plan_units(scenes, entries)
     at_start = machine_info()

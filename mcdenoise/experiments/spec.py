@@ -22,7 +22,14 @@ nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
                                           # being random_spec([render] seed, k)
     # folder = "../generated/train"       # ... or an existing `mcdenoise render` folder
                                           # (relative to this file; used as it is, never
-                                          # rendered into)
+                                          # rendered into; a folder of sequences, rendered
+                                          # with --frames, makes a sequence experiment)
+
+    [scenes.animate.cornell]              # sequences only: motion for the scene spec named
+    animation = { camera_path = "orbit", angle = 12 }   # "cornell": its [animation] table
+    move = [{ object = 5, translate = [0.3, 0, 0] }]    # and objects[5].motion (over the
+                                          # sequence), merged into the spec before it is
+                                          # parsed (a curated still gains motion without a copy)
 
     [render]                              # how missing images are rendered
     resolution = 128                      # N or [width, height]
@@ -34,6 +41,8 @@ nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
     pass_spp = 128
     folder = "data"                       # render folder, relative to the output folder DIR
                                           # (kept: a second run renders nothing)
+    frames = 12                           # optional: every scene is a sequence of N >= 2
+                                          # frames (`mcdenoise render --frames N`); see below
 
     [params.nlm]                          # parameter overrides of one method
     search_radius = 8
@@ -58,9 +67,21 @@ nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
                                           # log-spaced budgets over the measured total times)
     outputs = "all"                       # keep the denoised EXR of every level ("all") or of
                                           # the strip level only ("strip")
+    warmup_frames = 2                     # sequences: first frames reported apart (history
+                                          # warm-up, :mod:`mcdenoise.eval.temporal`)
 
 With ``[scenes] folder``, the ladder, size and reference come from that folder's manifest;
 ``[render]`` may then only give ``spp``, a subset of the folder's levels.
+
+Sequences (``frames = N``, or a folder rendered with ``--frames``): every scene is a sequence
+of ``N`` frames (:mod:`mcdenoise.render.sequences`; camera path and moving objects from the
+scene spec's ``[animation]`` and ``objects[i].motion``, or from ``[scenes.animate.<name>]``).
+Each (sequence, spp, method) is one unit: the method runs over the whole sequence (a temporal
+method through its ``run_sequence``, a per-frame one frame by frame), times are per frame, and
+the metrics are those of :func:`mcdenoise.eval.temporal.sequence_metrics`: the per-frame
+metrics averaged past the warm-up, the temporal ones (``trelmse``, ``tpsnr``, ``trmae``) and
+the warm-up frames apart. ``metrics`` may then name temporal metrics and must include
+``relmse`` and ``trelmse``; its default is every still and temporal metric.
 
 Errors are :class:`ExperimentError` naming the file and the key, e.g.
 ``demo.toml: sweep[0].values[1]: method 'cross-bilateral' ...``. Method names and sweep
@@ -104,11 +125,22 @@ _TOP_KEYS = (
     "stats",
     "report",
 )
-_SCENE_KEYS = ("specs", "random", "folder")
-_RENDER_KEYS = ("resolution", "spp", "ref_spp", "variant", "seed", "pass_spp", "folder")
+_SCENE_KEYS = ("specs", "random", "folder", "animate")
+_ANIMATE_KEYS = ("animation", "move")
+_MOVE_KEYS = ("object", "translate")
+_RENDER_KEYS = (
+    "resolution",
+    "spp",
+    "ref_spp",
+    "variant",
+    "seed",
+    "pass_spp",
+    "folder",
+    "frames",
+)
 _SWEEP_KEYS = ("method", "param", "values", "params")
 _STATS_KEYS = ("baseline", "bootstrap", "confidence", "seed")
-_REPORT_KEYS = ("strip_spp", "budgets", "outputs")
+_REPORT_KEYS = ("strip_spp", "budgets", "outputs", "warmup_frames")
 
 
 class ExperimentError(McdenoiseError, ValueError):
@@ -163,6 +195,9 @@ class ExperimentSpec:
     budgets: tuple[float, ...] | None = None
     outputs: str = "all"
     spp_given: bool = True
+    frames: int | None = None
+    animate: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    warmup_frames: int = 2
 
     def strip_level(self, levels: Sequence[int]) -> int:
         """The spp level of the image strips among ``levels``: ``strip_spp`` or the middle."""
@@ -173,6 +208,14 @@ class ExperimentSpec:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form, written into results.json (the resolved spec of the run)."""
+        d = self._to_dict()
+        if self.frames is not None or self.animate:  # a still experiment's form is unchanged
+            d["render"]["frames"] = self.frames
+            d["scenes"]["animate"] = {k: dict(v) for k, v in self.animate.items()}
+            d["report"]["warmup_frames"] = self.warmup_frames
+        return d
+
+    def _to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "source": self.source,
@@ -402,6 +445,10 @@ def parse_experiment(
     seed = _int(ctx, "render.seed", render.get("seed", 0), lo=0)
     pass_spp = _int(ctx, "render.pass_spp", render.get("pass_spp", 128), lo=1)
     render_folder = _str(ctx, "render.folder", render.get("folder", "data"))
+    frames = None
+    if "frames" in render:
+        frames = _int(ctx, "render.frames", render["frames"], lo=2)
+    animate = _animate(ctx, scenes.get("animate", {}), specs, frames)
 
     # methods, parameters, sweeps
     raw_methods = top.get("methods", "all")
@@ -458,15 +505,8 @@ def parse_experiment(
     # metrics and timing
     metrics = None
     if "metrics" in top:
-        from mcdenoise.eval.metrics import resolve_metrics
-
         raw = _list(ctx, "metrics", top["metrics"])
-        try:
-            metrics = tuple(resolve_metrics([_str(ctx, "metrics", m) for m in raw]))
-        except McdenoiseError as err:
-            raise ctx.error("metrics", str(err)) from None
-        if "relmse" not in metrics:
-            raise ctx.error("metrics", "must include relmse (the curves and tables use it)")
+        metrics = _metric_names(ctx, [_str(ctx, "metrics", m) for m in raw], frames)
     repetitions = _int(ctx, "repetitions", top.get("repetitions", 3), lo=1)
     warmup = _int(ctx, "warmup", top.get("warmup", 1), lo=0)
     device = _str(ctx, "device", top.get("device", "cpu"))
@@ -509,6 +549,11 @@ def parse_experiment(
                 raise ctx.error(f"report.budgets[{j}]", f"must be seconds > 0, got {b!r}")
         budgets = tuple(sorted(float(b) for b in raw_b))
     outputs = _str(ctx, "report.outputs", report.get("outputs", "all"))
+    from mcdenoise.eval.temporal import WARMUP_FRAMES
+
+    warmup_frames = _int(
+        ctx, "report.warmup_frames", report.get("warmup_frames", WARMUP_FRAMES), lo=0
+    )
     if outputs not in OUTPUT_MODES:
         raise ctx.error("report.outputs", f"{outputs!r} is not one of {', '.join(OUTPUT_MODES)}")
 
@@ -543,7 +588,83 @@ def parse_experiment(
         budgets=budgets,
         outputs=outputs,
         spp_given=spp_given,
+        frames=frames,
+        animate=animate,
+        warmup_frames=warmup_frames,
     )
+
+
+def _metric_names(ctx: _Ctx, raw: Sequence[str], frames: int | None) -> tuple[str, ...]:
+    """The spec's metrics: still ones (parts added), and temporal ones for sequences; relMSE
+    (and for sequences temporal relMSE) required, since the curves and tables use them."""
+    from mcdenoise.eval.metrics import resolve_metrics
+    from mcdenoise.eval.temporal import is_temporal, resolve_sequence_metrics
+
+    try:
+        if frames is None:
+            temporal = [m for m in raw if is_temporal(m.lower())]
+            if temporal:
+                raise ctx.error(
+                    "metrics",
+                    f"temporal metric(s) {', '.join(temporal)} need sequences "
+                    "([render] frames = N)",
+                )
+            metrics = tuple(resolve_metrics(raw))
+        else:
+            metrics = tuple(resolve_sequence_metrics(raw))
+    except ExperimentError:
+        raise
+    except McdenoiseError as err:
+        raise ctx.error("metrics", str(err)) from None
+    if "relmse" not in metrics:
+        raise ctx.error("metrics", "must include relmse (the curves and tables use it)")
+    if frames is not None and "trelmse" not in metrics:
+        raise ctx.error(
+            "metrics", "must include trelmse for sequences (the temporal tables use it)"
+        )
+    return metrics
+
+
+def _animate(
+    ctx: _Ctx, value: Any, specs: Sequence[Path], frames: int | None
+) -> dict[str, dict[str, Any]]:
+    """``[scenes.animate.<name>]``: per scene spec name, an ``animation`` table and a ``move``
+    list (``{object, translate}``), checked for shape here and merged into the scene spec
+    (validated by the render spec parser) when the jobs are made
+    (:func:`mcdenoise.experiments.dataset.render_jobs`)."""
+    table = _table(ctx, "scenes.animate", value)
+    if not table:
+        return {}
+    if frames is None:
+        raise ctx.error("scenes.animate", "only for sequences: set [render] frames = N")
+    from mcdenoise.render.spec import SpecError, load_spec
+
+    names: dict[str, Any] = {}
+    for p in specs:
+        try:
+            names[load_spec(p).name] = p
+        except SpecError as err:
+            raise ctx.error("scenes.specs", str(err)) from None
+    out: dict[str, dict[str, Any]] = {}
+    for name, raw in table.items():
+        key = f"scenes.animate.{name}"
+        if name not in names:
+            known = ", ".join(names) or "none"
+            raise ctx.error(key, f"no scene spec named {name!r} (scenes: {known})")
+        entry = dict(_table(ctx, key, raw, _ANIMATE_KEYS))
+        if "animation" in entry:
+            entry["animation"] = dict(_table(ctx, f"{key}.animation", entry["animation"]))
+        moves = []
+        for j, m in enumerate(entry.get("move", [])):
+            mt = _table(ctx, f"{key}.move[{j}]", m, _MOVE_KEYS)
+            if "object" not in mt or "translate" not in mt:
+                raise ctx.error(f"{key}.move[{j}]", "needs object (an index) and translate")
+            _int(ctx, f"{key}.move[{j}].object", mt["object"], lo=0)
+            moves.append(dict(mt))
+        if "move" in entry:
+            entry["move"] = moves
+        out[str(name)] = entry
+    return out
 
 
 def load_experiment(path: str | os.PathLike[str]) -> ExperimentSpec:
