@@ -233,7 +233,8 @@ def frame_info(path: str | os.PathLike[str], read: ReadOptions | None = None) ->
     file's channels resolved by name through the profile (detected or ``read.profile``) and
     ``read.mapping``, e.g. ``motion`` from the canonical ``motion.X/Y``, from Cycles'
     ``Vector`` pass, or from the channels a mapping file names. A Blender file of one part per
-    pass (whose view layer spans parts) is read in full instead, by the loader itself.
+    pass (whose view layer spans parts), or one read with ``read.part`` (a view layer by
+    name), is read in full instead, by the loader itself.
 
     Raises:
         ExrError, ProfileError, MissingFeatureError: as :func:`mcdenoise.io.load_buffers`.
@@ -246,7 +247,8 @@ def frame_info(path: str | os.PathLike[str], read: ReadOptions | None = None) ->
     p = Path(path)
     parts = probe_exr(p)
     attributes: dict[str, Any] = {}
-    if BLENDER_ATTR in parts[0].attributes and len(parts) > 1:
+    if BLENDER_ATTR in parts[0].attributes and (len(parts) > 1 or read.part is not None):
+        # a view layer may span parts, and --part may name a layer: the loader's own rules
         from mcdenoise.io import load_buffers
 
         fb = load_buffers(

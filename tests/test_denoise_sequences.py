@@ -348,6 +348,10 @@ def test_cycles_vector_pass_is_motion(tmp_path: Path):
     info = frame_info(path)
     assert {"color", "motion", "motion_next"} <= info.buffers and info.number == 7
     assert info.size == (w, h)
+    by_layer = frame_info(path, ReadOptions(part="ViewLayer"))  # a view layer by name
+    assert by_layer.buffers == info.buffers and by_layer.size == (w, h)
+    forced = frame_info(path, ReadOptions(profile="cycles:ViewLayer"))
+    assert forced.buffers == info.buffers
 
 
 # --- frame by frame, and resume ---------------------------------------------------------------
