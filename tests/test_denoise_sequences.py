@@ -460,3 +460,33 @@ def test_a_part_is_read_from_every_frame_and_named_in_the_outputs(toy: RunningMe
     torch.testing.assert_close(
         load_buffers(outcomes[1].job.output)["color"], (colour(0) + colour(1)) * 4 / 2
     )
+
+
+CYCLES_FILE = Path(__file__).parent / "io" / "data" / "cycles_32" / "cycles_spp4.exr"
+
+
+@pytest.mark.parametrize(
+    "read",
+    [
+        ReadOptions(),
+        ReadOptions(part="ViewLayer"),
+        ReadOptions(part="Layer2"),
+        ReadOptions(profile="cycles:Layer2"),
+    ],
+    ids=["auto", "part-ViewLayer", "part-Layer2", "profile-Layer2"],
+)
+def test_frame_info_finds_what_the_loader_reads_in_a_real_blender_file(read: ReadOptions):
+    """Blender 5 output (one part per pass, two view layers): the headers give the buffers
+    and size the loader produces (the Vector pass: motion and motion_next)."""
+    import logging
+
+    logging.disable(logging.WARNING)  # the profile's convention notes, not tested here
+    try:
+        fb = load_buffers(
+            CYCLES_FILE, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
+        )
+        info = frame_info(CYCLES_FILE, read)
+    finally:
+        logging.disable(logging.NOTSET)
+    assert info.buffers == set(fb.names()) and info.size == (fb.shape[1], fb.shape[0])
+    assert {"motion", "motion_next"} <= info.buffers
