@@ -566,6 +566,19 @@ def test_sequence_files_load_with_motion_and_the_manifest_records_frames(
             assert float(parts[0]["motion_next"].abs().max()) > 0.1 and float(nxt.mean()) > 0.3
     assert rec["render_seconds"] == pytest.approx(total, abs=1e-4)
     assert m["render_seconds"] == pytest.approx(total, abs=2e-3)
+    # The folder is one sequence for a temporal method (ref/ is not read): svgf, frame by frame.
+    from mcdenoise.denoise import ReadOptions, denoise_paths
+
+    done = list(
+        denoise_paths(
+            [folder], tmp_path / "den", "svgf", device="cpu", progress=False,
+            read=ReadOptions(part="spp4"),
+        )
+    )  # fmt: skip
+    assert [o.job.output.name for o in done] == [f"frame_000{f}_spp4_svgf.exr" for f in range(3)]
+    for f, o in enumerate(done):
+        got = load_buffers(o.job.output)
+        assert got.attributes["mcdenoise:frame"] == f and bool(torch.isfinite(got["color"]).all())
 
 
 @pytest.mark.mitsuba
