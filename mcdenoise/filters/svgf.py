@@ -14,6 +14,15 @@ step below names the shader it follows. Per frame:
    renormalised and at least 0.01 of them must remain. Where no bilinear tap survives but the
    motion is trusted, Falcor's fallback averages the taps of the 3×3 block around the nearest
    previous pixel that pass the same tests.
+
+   ``motion_valid`` (which Falcor does not have) = 0 drops the history. mcdenoise's renderer
+   writes 0 also in a one-pixel band along every silhouette, where it compares object ids, a
+   test depth and normal cannot make (a ceiling light and its ceiling share both), so the
+   band restarts its history every frame (a noisy ring around moving objects, seen by
+   helper F). Keeping the band's taps that pass the depth and normal tests instead, as
+   Falcor does everywhere, was tried and made the measured sequence worse: per-frame relMSE
+   0.0146 -> 0.0274 over 8 frames, the light smeared over the ceiling
+   (``docs/results/temporal.md``).
 3. **Accumulate** (``SVGFReproject``: ``main``): history length
    ``n = min(32, n_prev + 1)`` (1 without history); exponential moving averages with
    ``α = max(0.05, 1/n)`` for the illumination and ``max(0.2, 1/n)`` for the first two
