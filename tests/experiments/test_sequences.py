@@ -57,7 +57,7 @@ def test_sequence_experiment_end_to_end(seq_experiment, tmp_path):
     rows = {(r["method"], r["spp"]): r for r in data["temporal"]["rows"]}
     assert rows[("running-mean", 2)]["complete"]
     # averaging along the motion halves the frame-to-frame noise: lower temporal error than
-    # the noisy input's, and than the per-frame box filter's change between frames
+    # the noisy input's
     assert rows[("running-mean", 2)]["trelmse"] < rows[("noisy", 2)]["trelmse"]
 
     rec = next(
@@ -205,3 +205,44 @@ def animation_frames(path: Path) -> int:
     from PIL import Image
 
     return int(getattr(Image.open(path), "n_frames", 1))
+
+
+def test_still_experiment_unchanged(tmp_path, fake_methods):
+    """A still experiment writes no sequence column, table or file."""
+    from synthetic_data import make_render_folder
+
+    from mcdenoise.experiments.report import CSV_HEAD, CSV_TAIL
+
+    folder = make_render_folder(tmp_path / "stills", scenes=("alpha",), spp=(1, 2))
+    fake_methods.add("box")
+    text = SPEC.replace('["box", "running-mean"]', '["box"]').replace("warmup_frames = 1\n", "")
+    spec = load_experiment(write_spec(tmp_path / "s.toml", text.format(folder=folder.as_posix())))
+    assert spec.frames is None and "frames" not in spec.to_dict()["render"]
+    out = tmp_path / "out"
+    run_experiment(spec, out)
+    data = json.loads((out / "results.json").read_text())
+    assert "temporal" not in data and not (out / "frames.csv").exists()
+    with (out / "results.csv").open() as f:
+        header = next(csv.reader(f))
+    assert header == [*CSV_HEAD, *data["metrics"], *CSV_TAIL]
+    assert not any(m in header for m in ("trelmse", "tpsnr", "trmae", "relmse_warmup"))
+    assert not any("frames" in r for r in data["records"])
+    assert list((out / "outputs").glob("*.exr"))  # outputs are files, not folders of frames
+
+
+def test_animation_gif_without_pillow(tmp_path, monkeypatch):
+    """Without Pillow the animated strip is a GIF (OpenImageIO), one subimage per frame."""
+    import OpenImageIO as oiio
+
+    from mcdenoise.experiments import temporal_report
+
+    monkeypatch.setattr(temporal_report, "animation_writer", lambda: "gif")
+    frames = [np.full((6, 10, 3), 30 * t, np.uint8) for t in range(5)]
+    path = temporal_report.write_animation(tmp_path / "a", frames, fps=4)
+    assert path.suffix == ".gif"
+    inp = oiio.ImageInput.open(str(path))
+    count = 0
+    while inp.seek_subimage(count, 0):
+        count += 1
+    inp.close()
+    assert count == 5
