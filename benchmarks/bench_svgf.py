@@ -30,6 +30,7 @@ import argparse
 import os
 import statistics
 import sys
+import time
 from pathlib import Path
 
 import torch
@@ -108,19 +109,36 @@ def timing(seq: Path, part: str, size: int, n_frames: int, threads: int) -> None
     frames, _ = _frames(seq, part)
     big = [_tiled(frames[i % len(frames)], size) for i in range(n_frames)]
     load = os.getloadavg()[0]
-    results = list(denoise_sequence(iter(big), "svgf"))
-    secs = [r.seconds for r in results]
+    secs, cpu = [], []
+    results = denoise_sequence(iter(big), "svgf")
+    while True:  # wall seconds of the method (denoise_sequence's) and CPU seconds of the process
+        c0 = time.process_time()
+        r = next(results, None)
+        if r is None:
+            break
+        cpu.append(time.process_time() - c0)
+        secs.append(r.seconds)
     steady = secs[WARMUP:] or secs
+    steady_cpu = cpu[WARMUP:] or cpu
     oidn = get_method("oidn")
     line = ""
     if oidn.unavailable() is None:
-        o = [next(denoise_sequence([big[0]], "oidn")).seconds for _ in range(3)]
+        o, oc = [], []
+        for _ in range(3):
+            c0 = time.process_time()
+            o.append(next(denoise_sequence([big[0]], "oidn")).seconds)
+            oc.append(time.process_time() - c0)
         ratio = statistics.median(steady) / statistics.median(o)
-        line = f"; OIDN (same frame, same run): median {statistics.median(o):.3f} s; svgf/OIDN {ratio:.2f}"
+        line = (
+            f"; OIDN (same frame, same run): median {statistics.median(o):.3f} s "
+            f"(CPU {statistics.median(oc):.2f} s); svgf/OIDN {ratio:.2f}"
+        )
     print(
         f"svgf {size}x{size}, {threads} thread(s), load average {load:.1f} at start: "
         f"frame 0 {secs[0]:.3f} s, frames >= {WARMUP} median {statistics.median(steady):.3f} s "
-        f"(all: {' '.join(f'{s:.2f}' for s in secs)}){line}"
+        f"(all: {' '.join(f'{s:.2f}' for s in secs)}){line}; CPU seconds of the process per "
+        f"frame (all threads, includes reading nothing: frames are in memory) frames >= {WARMUP} "
+        f"median {statistics.median(steady_cpu):.2f}, frame 0 {cpu[0]:.2f}"
     )
 
 
