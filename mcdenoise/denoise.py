@@ -507,25 +507,29 @@ def _run_sequence_job(
             )
             yield fb
 
+    def postfix(i: int) -> str:  # the frame being denoised; "history": replayed, not written
+        return f"{job.inputs[i].name} {m.name}" + (" (history)" if i < todo[0] else "")
+
+    bar.set_postfix_str(postfix(0))
     results = denoise_sequence(frames(), m, params=plan.params, device=device)
-    for i, result in enumerate(results):
-        fj, meta = frame_jobs[i], loaded.pop(i)
-        if done[i]:
-            bar.update(1)
-            yield JobOutcome(fj, skipped=f"{fj.output} is done (an earlier run wrote it)")
-        else:
-            bar.set_postfix_str(f"{fj.input.name} {m.name}")
-            assert fj.output is not None
-            res = _write_result(fj.input, fj.output, meta, result, read, write)
-            bar.update(1)
-            yield JobOutcome(fj, res)
-        if i == last:
-            break
-        if i + 1 < todo[0]:
-            bar.set_postfix_str(f"{job.inputs[i + 1].name} {m.name} (history)")
-    close = getattr(results, "close", None)
-    if close is not None:
-        close()
+    try:
+        for i, result in enumerate(results):
+            fj, meta = frame_jobs[i], loaded.pop(i)
+            if done[i]:
+                bar.update(1)
+                yield JobOutcome(fj, skipped=f"{fj.output} is done (an earlier run wrote it)")
+            else:
+                assert fj.output is not None
+                res = _write_result(fj.input, fj.output, meta, result, read, write)
+                bar.update(1)
+                yield JobOutcome(fj, res)
+            if i == last:
+                break
+            bar.set_postfix_str(postfix(i + 1))
+    finally:
+        close = getattr(results, "close", None)
+        if close is not None:
+            close()
     for fj in frame_jobs[last + 1 :]:
         bar.update(1)
         yield JobOutcome(fj, skipped=f"{fj.output} is done (an earlier run wrote it)")
