@@ -5,14 +5,14 @@ used as it is."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
-from mcdenoise.filters.box import median3
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.prep.aux_prefilter import (
     aux_feature_variance,
-    median_excess,
     mixing_mask,
+    neighbour_excess,
     prefilter_aux,
 )
 from mcdenoise.prep.inputs import PREFILTER_ESTIMATED, prefilter_feature, prepare_inputs
@@ -123,8 +123,13 @@ def test_without_a_normal_the_cap_holds_everywhere() -> None:
     assert mse(out, f) < 1e-4  # the colour allows no noise: (almost) untouched
 
 
-def test_median_excess_in_strips_is_the_whole_frame_median() -> None:
-    g = torch.Generator().manual_seed(3)
-    f = torch.rand(1, 3, 300, 17, generator=g)
-    whole = (f - median3(f)).square().mean(dim=1, keepdim=True)
-    torch.testing.assert_close(median_excess(f), whole, rtol=0, atol=0)
+def test_neighbour_excess_is_the_distance_to_the_mean_of_the_other_pixels() -> None:
+    f = torch.zeros(1, 2, 5, 6)
+    f[0, :, 2, 3] = 0.8  # a lone outlier
+    f[0, 0, 0, 0] = 0.3  # one in a corner (3 neighbours), one channel
+    ex = neighbour_excess(f)[0, 0]
+    assert ex.shape == (5, 6)
+    assert float(ex[2, 3]) == pytest.approx(0.64)
+    assert float(ex[2, 2]) == pytest.approx((0.1**2 + 0.1**2) / 2)  # 0.8 / 8 from the outlier
+    assert float(ex[0, 0]) == pytest.approx(0.09 / 2)
+    assert float(ex[1, 1]) == pytest.approx((0.3 / 8) ** 2 / 2)  # the corner, not the outlier
