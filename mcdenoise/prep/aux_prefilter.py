@@ -42,13 +42,13 @@ The NLM is the same 7×7 window as before: the whole change costs a normal lengt
 and a 3×3 mean per feature. Measured alternatives on the same tuning renders (the four
 ``data/samples`` scenes and three depth-of-field variants of the ``dof`` spec, not the
 out-of-distribution set), ``kpcn`` relMSE geometric mean over 14 images (4 and 16 spp): capped
-one-scale prefilter 0.0162; this module 0.0115; an 11×11 window on top 0.0110 (2.5× the
+one-scale prefilter 0.0162; this module 0.0116; an 11×11 window on top 0.0110 (2.5× the
 prefilter's time, over the 4K time bound); a 2×2-mean pyramid of NLM levels merged where they
 agree within the noise (intersection of confidence intervals, Katkovnik 1999) 0.0127-0.0150
 whatever the gate (the coarse levels blur the partly defocused texture the reference keeps);
 a 3×3-median guide for the patch distances 0.0160 (4× better on the defocused horizon, 2-3×
-worse on in-focus checkerboards); no cap anywhere 0.0112 at 4 spp but 30-40 % worse at 16 spp
-on textured scenes (the neighbourhood estimate takes texture for noise).
+worse on in-focus checkerboards); no cap anywhere 0.0112, but 20-40 % worse than the capped
+prefilter at 16 spp on the textured ``dof`` and ``materials`` samples (the neighbourhood estimate takes texture for noise).
 """
 
 from __future__ import annotations
@@ -74,8 +74,11 @@ MIXING_THRESHOLD = 0.05
 #: of a defocused edge spreads a pixel beyond where the normal shows it.
 MIXING_RADIUS = 1
 #: A mixing pixel farther than this many estimated standard deviations from the mean of its 8
-#: neighbours is an outlier (its squared excess becomes its variance).
-OUTLIER_SIGMAS = 4.0
+#: neighbours is an outlier (its squared excess becomes its variance). 4, as for the colour's
+#: fireflies, also took the texture beside silhouettes for outliers at 64 spp (the four
+#: ``make demo`` scenes, plain copies: kpcn / OIDN 0.97 against 0.94 without this module);
+#: 8 keeps the 4-spp gain (1.04 against 1.09) and loses nothing at 64 spp (0.92).
+OUTLIER_SIGMAS = 8.0
 
 
 def mixing_mask(normal: Tensor, threshold: float = MIXING_THRESHOLD) -> Tensor:
