@@ -16,18 +16,11 @@ registry), :mod:`~mcdenoise.eval.temporal` (temporal relMSE, Noisebase's tPSNR a
 per-frame metrics of a sequence), :mod:`~mcdenoise.eval.tonemap` (sRGB, exposure, false colour),
 :mod:`~mcdenoise.eval.preview` (crop choice), :mod:`~mcdenoise.eval.results` (records and
 their JSON form), :mod:`~mcdenoise.eval.evaluate` (files and arrays -> records),
-:mod:`~mcdenoise.eval.report` (records -> files).
+:mod:`~mcdenoise.eval.sequences` (folders of frames -> records), :mod:`~mcdenoise.eval.report`
+(records -> files).
 """
 
-from mcdenoise.eval.evaluate import (
-    evaluate,
-    evaluate_arrays,
-    evaluate_sequence_arrays,
-    evaluate_sequences,
-    match_prefix,
-    run_eval,
-    sequence_frames,
-)
+from mcdenoise.eval.evaluate import evaluate, evaluate_arrays, match_prefix, run_eval
 from mcdenoise.eval.metrics import (
     METRICS,
     Metric,
@@ -49,6 +42,11 @@ from mcdenoise.eval.results import (
     FrameRecord,
     ScenePreview,
     SequenceDetail,
+)
+from mcdenoise.eval.sequences import (
+    evaluate_sequence_arrays,
+    evaluate_sequences,
+    sequence_frames,
 )
 from mcdenoise.eval.temporal import (
     TEMPORAL_METRICS,
