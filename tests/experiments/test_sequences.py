@@ -246,3 +246,29 @@ def test_animation_gif_without_pillow(tmp_path, monkeypatch):
         count += 1
     inp.close()
     assert count == 5
+
+
+def test_load_sequences(tmp_path):
+    """Sequences are read with their frames and per-frame render seconds; an unfinished
+    sequence, or a still folder where sequences are expected, is refused in one line."""
+    from synthetic_data import make_render_folder
+
+    from mcdenoise.experiments.dataset import load_dataset
+
+    folder = make_sequence_folder(tmp_path / "seq", frames=3, spp=(2, 8))
+    (scene,) = load_dataset(folder, sequences=True)
+    assert scene.is_sequence and len(scene.frames) == 3
+    assert [lv.spp for lv in scene.levels] == [2, 8]
+    assert scene.level(8).render_seconds == pytest.approx(0.08)  # JIT excluded per frame
+    assert len(scene.files()) == 6
+    with pytest.raises(ExperimentError, match="holds sequences"):
+        load_dataset(folder)
+    manifest = folder / "manifest.json"
+    data = json.loads(manifest.read_text())
+    data["images"][0]["complete"] = False
+    manifest.write_text(json.dumps(data))
+    with pytest.raises(ExperimentError, match="frames finished"):
+        load_dataset(folder, sequences=True)
+    stills = make_render_folder(tmp_path / "stills", scenes=("a",), spp=(1,))
+    with pytest.raises(ExperimentError, match="not sequences"):
+        load_dataset(stills, sequences=True)
