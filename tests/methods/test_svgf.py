@@ -386,3 +386,24 @@ def test_a_bright_light_does_not_spread_over_its_plane() -> None:
     assert float(out[:, ring].max()) < 0.45
     (falcor,) = _run([(fb, None)], phi_color=10.0, use_color_var=False)
     assert float(falcor[:, ring].max()) > 0.6
+
+
+def test_guides_with_variances_are_prefiltered() -> None:
+    s = make_scene(32, 32, seed=2)
+    g = torch.Generator().manual_seed(9)
+    noisy_albedo = (
+        s.albedo[0] + 0.1 * torch.randn(3, 32, 32, generator=g, dtype=s.albedo.dtype)
+    ).clamp(0, 1)
+    fb = FeatureBuffers(
+        {
+            "color": s.noisy[0],
+            "albedo": noisy_albedo,
+            "albedo_var": torch.full((3, 32, 32), 0.01),
+        }
+    )
+    (fast,) = _run([(fb, None)])
+    (off,) = _run([(fb, None)], prefilter="off")
+    clean = s.clean[0].float()
+    assert relmse(fast, clean) < 0.8 * relmse(off, clean)
+    with pytest.raises(InputError, match="prefilter must be one of off, fast, full"):
+        _run([(fb, None)], prefilter="maybe")
