@@ -403,6 +403,20 @@ def format_counts(a: Analysis) -> str:
     return "\n".join(lines)
 
 
+def _short(reason: str) -> str:
+    """A refusal's first clause without the file's path (the JSON keeps it whole)."""
+    head = reason.split("; ")[0]
+    path, sep, rest = head.partition(": ")
+    return rest if sep and ("/" in path or path.endswith(".exr")) else head
+
+
+def _grouped(rows: Sequence[tuple[str, str, int, str]]) -> dict[tuple[str, str, str], list[int]]:
+    out: dict[tuple[str, str, str], list[int]] = {}
+    for s, m, n, reason in rows:
+        out.setdefault((s, m, _short(reason)), []).append(n)
+    return out
+
+
 def format_report(
     analyses: Sequence[Analysis], values: str = "ratio", top: int | None = None
 ) -> str:
@@ -434,8 +448,8 @@ def format_report(
             out.append(f"- rule {u}: not checked")
         if a.not_measured:
             out.append(f"- not measured ({len(a.not_measured)} unit(s), no relMSE):")
-            for s, m, n, r in a.not_measured:
-                out.append(f"  - {m} / {s} / {n} spp: {r}")
+            for (s, m, reason), levels in _grouped(a.not_measured).items():
+                out.append(f"  - {m} / {s} / {', '.join(map(str, levels))} spp: {reason}")
         out.append("")
     if len(analyses) > 1:
         out.append("## Counts compared\n")

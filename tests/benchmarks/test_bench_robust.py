@@ -109,6 +109,7 @@ def test_command_line_table_json_and_comparison(bench, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "| glass | m1 | 10.0 | **3.12** a | 2.83 | **6.00** a | **8.00** a |" in out
     assert "| (a) | 5 | 2 |" in out and "| total | 9 | 6 |" in out
+    assert "  - m2 / glass / 16 spp: needs albedo" in out  # listed, no rule broken
     doc = json.loads((tmp_path / "r.json").read_text())
     assert [e["counts"] for e in doc["experiments"]] == [
         {"a": 5, "b": 2, "c": 2},
