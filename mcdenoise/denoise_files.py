@@ -154,7 +154,7 @@ def collect_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
                 if q.suffix.lower() == ".exr" and q.is_file() and not q.name.startswith(TMP_PREFIX)
             )
             if not found:
-                raise InputError(f"folder {p} holds no .exr files")
+                raise InputError(f"folder {p} holds no .exr files{_subfolder_hint(p)}")
             files.extend(found)
         elif p.exists():
             files.append(p)
@@ -165,6 +165,23 @@ def collect_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
     if len(set(f.resolve() for f in files)) != len(files):
         raise InputError("the same input file is given twice")
     return files
+
+
+def _subfolder_hint(folder: Path) -> str:
+    """Where the frames are when ``folder`` is the top of a ``render --frames`` output (one
+    subfolder per sequence): ``" (its subfolders a, b hold some: give them, e.g. DIR/a)"``."""
+
+    def holds_exr(q: Path) -> bool:
+        try:
+            return q.is_dir() and any(r.suffix.lower() == ".exr" for r in q.iterdir())
+        except OSError:  # unreadable: no hint from it
+            return False
+
+    with_exr = sorted(q.name for q in folder.iterdir() if q.name != "ref" and holds_exr(q))
+    if not with_exr:
+        return ""
+    shown = ", ".join(with_exr[:5]) + (", ..." if len(with_exr) > 5 else "")
+    return f" (its subfolders {shown} hold some: give them, e.g. {folder / with_exr[0]})"
 
 
 def plan_outputs(

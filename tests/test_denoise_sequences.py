@@ -490,3 +490,13 @@ def test_frame_info_finds_what_the_loader_reads_in_a_real_blender_file(read: Rea
         logging.disable(logging.NOTSET)
     assert info.buffers == set(fb.names()) and info.size == (fb.shape[1], fb.shape[0])
     assert {"motion", "motion_next"} <= info.buffers
+
+
+def test_the_top_of_a_render_folder_points_to_its_sequences(toy: RunningMean, tmp_path: Path):
+    write_frames(tmp_path / "renders" / "ballA", 2)
+    write_frames(tmp_path / "renders" / "ballB", 2)
+    with pytest.raises(InputError) as err:
+        run([tmp_path / "renders"], tmp_path / "out", "runmean")
+    msg = str(err.value)
+    assert "holds no .exr files (its subfolders ballA, ballB hold some" in msg
+    assert str(tmp_path / "renders" / "ballA") in msg
