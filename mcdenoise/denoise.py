@@ -106,6 +106,10 @@ class OptionError(InputError):
 def parse_methods(spec: str) -> list[Method]:
     """``"auto"`` -> [best available]; ``"all"`` -> every available method; ``"a,b"`` -> those.
 
+    An external command (``cmd:PROGRAM ARGS``, :mod:`mcdenoise.methods.external`) runs to the
+    end of ``spec`` or to the next ``,cmd:``, so its own commas stay its own:
+    ``"nlm,cmd:den -s 1,2 {input} {output}"`` is nlm and one command.
+
     >>> [m.name for m in parse_methods("nlm")]
     ['nlm']
     """
@@ -114,7 +118,9 @@ def parse_methods(spec: str) -> list[Method]:
         return [best_method()]
     if spec == "all":
         return available_methods()
-    names = [s.strip() for s in spec.split(",") if s.strip()]
+    head, *commands = ("," + spec if spec.startswith("cmd:") else spec).split(",cmd:")
+    names = [s.strip() for s in head.split(",") if s.strip()]
+    names += ["cmd:" + c.strip() for c in commands]
     if not names:
         raise InputError("--method is empty")
     chosen = [get_method(n) for n in names]

@@ -15,12 +15,26 @@ Adding a method::
 
     register(Method(name="my-filter", summary="...", requires=("color",), uses=("albedo",),
                     defaults={"radius": 10}, run=my_run, priority=10))
+
+Two ways in from outside, without a change to mcdenoise (docs/methods.md, "Bring your own
+denoiser"):
+
+* **plugins**: every entry point of the group ``mcdenoise.methods`` (:data:`PLUGIN_GROUP`) of
+  the installed packages is loaded with the built-ins (:func:`_load_plugins`). It gives a
+  :class:`Method`, or a callable returning one or a list of them. A plugin that fails to
+  load, gives something else, or names a built-in method is listed as an unavailable method
+  with the reason, never an error of ``mcdenoise methods``; a built-in keeps its name.
+* **commands**: ``get_method("cmd:PROGRAM ARGS {input} {output}")`` builds the method of an
+  external command (:mod:`mcdenoise.methods.external`); it is not in the table (never a
+  default, never part of ``all``) but is found again by its name (``cmd-PROGRAM-xxxxxx``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
+from importlib import metadata
+from typing import Any
 
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
@@ -34,6 +48,7 @@ from mcdenoise.method import (
 )
 
 __all__ = [
+    "PLUGIN_GROUP",
     "CheckFn",
     "Method",
     "MethodChoice",
@@ -52,6 +67,10 @@ __all__ = [
 
 _REGISTRY: dict[str, Method] = {}
 _ALIASES: dict[str, str] = {}
+#: ``cmd:`` methods built so far: their name and their ``cmd:...`` text -> the method.
+_COMMANDS: dict[str, Method] = {}
+#: The entry-point group a package declares its methods in.
+PLUGIN_GROUP = "mcdenoise.methods"
 #: "no" (built-ins not loaded yet), "loading" (their modules are being imported), "done".
 _builtins = {"state": "no"}
 
@@ -68,14 +87,74 @@ def _ensure_builtins() -> None:
     try:
         from mcdenoise.methods import builtin_methods
 
-        for method, aliases in builtin_methods():
+        builtin = builtin_methods()
+        for method, aliases in builtin:
             _REGISTRY.setdefault(method.name, method)
             for alias in aliases:
                 _ALIASES.setdefault(alias, method.name)
+        reserved = {m.name for m, _ in builtin} | {a for _, al in builtin for a in al}
+        for method in _load_plugins(reserved):
+            _REGISTRY.setdefault(method.name, method)
     except BaseException:
         _builtins["state"] = "no"  # the next call raises the same error again
         raise
     _builtins["state"] = "done"
+
+
+def _entry_points() -> Iterable[Any]:
+    """The installed entry points of :data:`PLUGIN_GROUP` (a seam for tests)."""
+    return metadata.entry_points(group=PLUGIN_GROUP)
+
+
+def _load_plugins(reserved: Collection[str]) -> list[Method]:
+    """The methods of every plugin entry point, in entry-point name order.
+
+    An entry point's object is a :class:`Method`, or a callable returning a Method or an
+    iterable of them. What fails (the import, the call, anything but Methods, a name in
+    ``reserved``: the built-ins and their aliases) becomes an unavailable method named after
+    the entry point (``plugin:NAME`` when that name is taken) whose reason is the error, one
+    line; ``mcdenoise methods`` lists it, and using it says why it cannot run.
+    """
+    try:
+        eps = sorted(_entry_points(), key=lambda ep: (ep.name, ep.value))
+    except Exception as err:  # a broken installation: no plugins, said once
+        return [_broken("plugins", "entry points", f"cannot list the installed plugins: {err}")]
+    out: list[Method] = []
+    seen = set(reserved)
+    for ep in eps:
+        try:
+            obj = ep.load()
+            got = obj() if callable(obj) and not isinstance(obj, Method) else obj
+            found = [got] if isinstance(got, Method) else list(got)
+            bad = [type(m).__name__ for m in found if not isinstance(m, Method)]
+            if bad or not found:
+                what = f"gave {', '.join(bad)}" if bad else "gave no method"
+                raise TypeError(f"{what}, not mcdenoise.method.Method")
+            taken = [m.name for m in found if m.name in seen]
+            if taken:
+                raise ValueError(f"method name {taken[0]!r} is already taken")
+        except Exception as err:
+            reason = " ".join(f"{type(err).__name__}: {err}".split())
+            name = ep.name if ep.name not in seen else f"plugin:{ep.name}"
+            seen.add(name)
+            out.append(_broken(name, ep.value, reason))
+            continue
+        seen.update(m.name for m in found)
+        out += found
+    return out
+
+
+def _broken(name: str, where: str, reason: str) -> Method:
+    """The stand-in of a plugin that could not be loaded: unavailable, with the reason."""
+    why = f"plugin {where} failed to load: {reason}"
+
+    def refuse(b: FeatureBuffers, p: Any, d: Any) -> Any:
+        raise InputError(f"method {name!r} is not available: {why}")
+
+    unavailable: Callable[[], str | None] = lambda: why  # noqa: E731
+    return Method(
+        name, f"plugin {where} (not loaded)", ("color",), (), {}, refuse, -1000, unavailable
+    )
 
 
 def register(method: Method, *, aliases: Iterable[str] = ()) -> Method:
@@ -96,11 +175,25 @@ def methods() -> list[Method]:
 def get_method(name: str) -> Method:
     """The method called ``name`` (or an alias); ``InputError`` listing the known ones."""
     _ensure_builtins()
+    if name.startswith("cmd:") or name in _COMMANDS:
+        return _command(name)
     key = _ALIASES.get(name, name)
     if key not in _REGISTRY:
         known = ", ".join(m.name for m in methods())
         raise InputError(f"unknown method {name!r} (known: {known})")
     return _REGISTRY[key]
+
+
+def _command(name: str) -> Method:
+    """The method of an external command ``cmd:...`` (built once), or one built before,
+    by its name."""
+    key = name.strip()
+    if key not in _COMMANDS:
+        from mcdenoise.methods.external import command_method
+
+        method = command_method(key.removeprefix("cmd:"))
+        _COMMANDS[key] = _COMMANDS[method.name] = method
+    return _COMMANDS[key]
 
 
 def available_methods() -> list[Method]:
