@@ -460,6 +460,16 @@ def format_report(
                 f"| ({rule}) | " + " | ".join(str(a.counts()[rule]) for a in analyses) + " |"
             )
         out.append("| total | " + " | ".join(str(len(a.violations)) for a in analyses) + " |")
+        common = set.intersection(*(set(a.methods) for a in analyses)) - {NOISY}
+        if any(set(a.methods) - {NOISY} != common for a in analyses):  # a method came or went
+            cells = [
+                "/".join(str(sum(a.by_method()[m][r] for m in common)) for r in RULES)
+                for a in analyses
+            ]
+            out.append(f"| (a)/(b)/(c) of the {len(common)} methods in all | {' | '.join(cells)} |")
+            for a in analyses:
+                if extra := [m for m in a.methods if m != NOISY and m not in common]:
+                    out.append(f"\n{a.folder} also has: {', '.join(extra)}")
         out.append("")
     out.append("Rules (issue 22): " + "; ".join(f"({k}) {v}" for k, v in RULES.items()) + ".")
     return "\n".join(out)

@@ -110,6 +110,11 @@ def test_command_line_table_json_and_comparison(bench, tmp_path, capsys):
     assert "| glass | m1 | 10.0 | **3.12** a | 2.83 | **6.00** a | **8.00** a |" in out
     assert "| (a) | 5 | 2 |" in out and "| total | 9 | 6 |" in out
     assert "  - m2 / glass / 16 spp: needs albedo" in out  # listed, no rule broken
+    three = write_results(tmp_path / "three", {k: v for k, v in VALUES.items() if k != "m3"})
+    assert bench.main([str(base), str(three)]) == 0
+    out = capsys.readouterr().out
+    assert "| (a)/(b)/(c) of the 3 methods in all | 4/1/1 | 4/1/1 |" in out
+    assert f"{base} also has: m3" in out
     doc = json.loads((tmp_path / "r.json").read_text())
     assert [e["counts"] for e in doc["experiments"]] == [
         {"a": 5, "b": 2, "c": 2},
