@@ -125,7 +125,12 @@ def _load_plugins(reserved: Collection[str]) -> list[Method]:
         try:
             obj = ep.load()
             got = obj() if callable(obj) and not isinstance(obj, Method) else obj
-            found = [got] if isinstance(got, Method) else list(got)
+            if isinstance(got, Method):
+                found = [got]
+            elif isinstance(got, Iterable) and not isinstance(got, (str, bytes)):
+                found = list(got)
+            else:
+                raise TypeError(f"gave {type(got).__name__}, not mcdenoise.method.Method")
             bad = [type(m).__name__ for m in found if not isinstance(m, Method)]
             if bad or not found:
                 what = f"gave {', '.join(bad)}" if bad else "gave no method"
