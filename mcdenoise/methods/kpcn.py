@@ -55,8 +55,9 @@ def denoise_kpcn(
         source: force an input source (default: the first the model knows whose buffers
             are present, :func:`~mcdenoise.prep.kpcn.source_for`).
         prefilter: which noisy guide features are prefiltered first, a key of
-            :data:`~mcdenoise.prep.kpcn.PREFILTER_MODES` (default ``all``: every guide
-            feature, steered by its variance buffer where it has one).
+            :data:`~mcdenoise.prep.kpcn.PREFILTER_MODES` (default ``adaptive``: every guide
+            feature, steered by its variance buffer where it has one, else by its own
+            estimate, uncapped where the pixel mixes surfaces).
         exposure: ``auto``: an image darker or brighter than the training renders is scaled
             into :data:`~mcdenoise.prep.kpcn.EXPOSURE_RANGE` and the result back
             (:func:`~mcdenoise.prep.kpcn.exposure_scale`); ``off``: as it is.
@@ -130,7 +131,7 @@ def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> 
 METHOD = Method(
     name="kpcn",
     summary="kernel-predicting CNN, source-aware encoder, 3-scale kernels (Bako 2017, "
-    "Vogels 2018); -p model=RUN, -p prefilter=auto|all|off, -p exposure=auto|off",
+    "Vogels 2018); -p model=RUN, -p prefilter=adaptive|auto|all|off, -p exposure=auto|off",
     requires=("color", "albedo", "normal"),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
     defaults={

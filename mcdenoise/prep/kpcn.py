@@ -13,17 +13,23 @@ Prefiltering matters where the features are noisy: depth of field, motion blur, 
 than a pixel. The network demodulates the colour by the albedo and multiplies the filtered
 irradiance back by it, so every bit of noise in the albedo comes back in the result; a
 source without feature variances (``basic``) cannot even tell the network that the albedo is
-noisy. ``all`` (the default) prefilters every guide feature with variance-normalised NLM
-(3×3 patches in a 7×7 window, :data:`~mcdenoise.prep.inputs.PREFILTER_ESTIMATED`; the
-classical filters' 7×7 patches in an 11×11 window were slower and no better here): one with a
-variance buffer steered by it, one without by a variance estimated from its neighbourhood
-(:func:`~mcdenoise.prep.inputs.estimate_feature_variance`). ``auto`` leaves the features
+noisy. ``all`` prefilters every guide feature with variance-normalised NLM (3×3 patches in a
+7×7 window, :data:`~mcdenoise.prep.inputs.PREFILTER_ESTIMATED`; the classical filters' 7×7
+patches in an 11×11 window were slower and no better here): one with a variance buffer steered
+by it, one without by a variance estimated from its neighbourhood
+(:func:`~mcdenoise.prep.inputs.estimate_feature_variance`) and capped by the colour's relative
+noise. ``adaptive`` (the default) is ``all`` except for features without a variance buffer,
+which it prefilters by :func:`~mcdenoise.prep.aux_prefilter.prefilter_aux`: the cap is dropped
+where the sample-averaged normal is short (the pixel mixes surfaces or the background, as on a
+defocused horizon, where the colour shows no noise), and outliers there are averaged away; on a
+render with every feature variance it is ``all``, bit for bit. ``auto`` leaves the features
 that have a variance as they are (the ``full`` source also hands that variance to the
 network); ``off`` prefilters nothing. ``all`` became the default after measuring both on the
 ``full`` source (``docs/results/kpcn.md``, "Out of distribution"): held-out relMSE at 4/16/64
 spp 0.00813/0.00323/0.00159 with ``auto``, 0.00703/0.00299/0.00154 with ``all``; on the
 out-of-distribution renders ``dof_extreme`` at 4 spp 14.4× OIDN's relMSE with ``auto``, 3.0×
-with ``all``.
+with ``all``. ``adaptive`` replaced it for files without variances (Mitsuba ``aov``, Cycles):
+``docs/results/ood.md``.
 
 Exposure: the network sees ``log1p`` of the demodulated colour, so its behaviour depends on
 the image's brightness, and it has only seen the training scenes' exposures. With
@@ -60,14 +66,14 @@ PREPARED = {
 }
 #: ``prefilter`` modes of :func:`prepare_tensors`: which guide features are prefiltered.
 PREFILTER_MODES = {
+    "adaptive": "every feature; one without a variance buffer by its own estimate, not "
+    "capped by the colour's noise where the pixel mixes surfaces (prep/aux_prefilter.py)",
     "auto": "the features without a variance buffer (variance estimated from the feature)",
     "all": "every feature (its variance buffer when there is one, else estimated)",
     "off": "none: the features as the renderer wrote them",
-    "adaptive": "every feature; one without a variance buffer by its own estimate, not "
-    "capped by the colour's noise where the pixel mixes surfaces (prep/aux_prefilter.py)",
 }
 #: Default ``prefilter`` mode.
-DEFAULT_PREFILTER = "all"
+DEFAULT_PREFILTER = "adaptive"
 
 #: ``exposure`` modes of the ``kpcn`` method.
 EXPOSURE_MODES = {

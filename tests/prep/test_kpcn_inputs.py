@@ -76,13 +76,20 @@ def test_prefilter_modes_touch_only_the_features_they_name() -> None:
     assert torch.equal(full_all["color"], full_off["color"])
     # basic (no variances): auto prefilters albedo and normal with an estimated variance
     basic = b.subset(["color", "albedo", "normal"])
-    off, auto = prepare_tensors(basic, "basic", "off"), prepare_tensors(basic, "basic")
+    off, auto = prepare_tensors(basic, "basic", "off"), prepare_tensors(basic, "basic", "auto")
     assert torch.equal(off["albedo"], basic["albedo"])
     for name in ("albedo", "normal"):
         assert not torch.equal(auto[name], off[name]), name
         assert float((auto[name] - off[name]).abs().mean()) < 0.05, name
     assert torch.equal(auto["color"], off["color"])
-    with pytest.raises(InputError, match="prefilter must be one of auto, all, off"):
+    # adaptive (the default): the same as all where every feature has its variance buffer
+    for name, v in prepare_tensors(b, "full").items():
+        assert torch.equal(v, full_all[name]), name
+    # and its own prefilter of the features without one (prep/aux_prefilter.py)
+    adaptive = prepare_tensors(basic, "basic")
+    assert not torch.equal(adaptive["albedo"], auto["albedo"])
+    assert torch.equal(adaptive["color"], off["color"])
+    with pytest.raises(InputError, match="prefilter must be one of adaptive, auto, all, off"):
         prepare_tensors(basic, "basic", "on")
 
 
