@@ -54,6 +54,7 @@ __all__ = [
     "MethodChoice",
     "RunFn",
     "SequenceFn",
+    "add_command",
     "aliases",
     "available_methods",
     "best_method",
@@ -194,11 +195,31 @@ def _command(name: str) -> Method:
     by its name."""
     key = name.strip()
     if key not in _COMMANDS:
-        from mcdenoise.methods.external import command_method
-
-        method = command_method(key.removeprefix("cmd:"))
-        _COMMANDS[key] = _COMMANDS[method.name] = method
+        add_command(key.removeprefix("cmd:"))
     return _COMMANDS[key]
+
+
+def add_command(command: str, *, name: str | None = None) -> Method:
+    """The method of the external command template ``command`` (without ``cmd:``), found
+    from now on by :func:`get_method` under ``name`` (default ``cmd-PROGRAM-xxxxxx``) and as
+    ``cmd:COMMAND``; not in the table, so never a default nor part of ``all``. For an
+    experiment's named commands (``[[methods.external]] name = ..., command = ...``).
+
+    Raises:
+        InputError: a bad template, or ``name`` taken by a method of the table or by another
+            command.
+    """
+    from mcdenoise.methods.external import command_method
+
+    _ensure_builtins()
+    method = command_method(command, name=name)
+    if method.name in _REGISTRY or method.name in _ALIASES:
+        raise InputError(f"external method name {method.name!r} is taken by a method")
+    old = _COMMANDS.get(method.name)
+    if old is not None and old.defaults["command"] != method.defaults["command"]:
+        raise InputError(f"external method name {method.name!r} names two commands")
+    _COMMANDS[method.name] = _COMMANDS["cmd:" + command.strip()] = method
+    return method
 
 
 def available_methods() -> list[Method]:

@@ -188,3 +188,14 @@ def test_pfm_round_trip(tmp_path: Path) -> None:
     (tmp_path / "g.pfm").write_bytes(b"Pf\n5 4\n1.0\n" + grey.tobytes())
     np.testing.assert_array_equal(read_pfm(tmp_path / "g.pfm"), np.stack([img[0]] * 3))
     assert parse_template("x {{a}} {output}").fill({"output": "o.exr"}) == ["x", "{a}", "o.exr"]
+
+
+def test_a_named_command_is_found_by_its_name() -> None:
+    text = _cmd("blur {input} {output}").removeprefix("cmd:")
+    m = registry.add_command(text, name="mine-blur")
+    assert registry.get_method("mine-blur") is m and m.defaults["command"] == text
+    assert registry.add_command(text, name="mine-blur").name == "mine-blur"  # same again: fine
+    with pytest.raises(InputError, match="names two commands"):
+        registry.add_command(text + " --x", name="mine-blur")
+    with pytest.raises(InputError, match="taken by a method"):
+        registry.add_command(text, name="nlm")
