@@ -30,25 +30,27 @@ What this module changes:
   it exceeds :data:`MIXING_THRESHOLD` (in a 3×3 neighbourhood), the feature's variance is its
   own neighbourhood estimate, uncapped; elsewhere the cap stays, so an in-focus texture on a
   flat surface (unit normals) is protected as before.
-* **Outliers in mixing pixels** (a lone floor sample in a pixel of sky: far from the mean of
-  its 8 neighbours by more than :data:`OUTLIER_SIGMAS` times the estimated noise, which a median-based estimate
-  does not see in heavy-tailed mixing noise) get their squared excess as variance, as
-  :func:`~mcdenoise.prep.inputs.estimate_variance` does for fireflies in the colour; NLM then
-  averages them with their neighbours instead of keeping a patch that matches nothing (the
-  rare-patch effect of NLM, Buades, Coll & Morel 2005).
+* **Outliers in mixing pixels** (a lone floor sample in a pixel of sky: farther from the mean
+  of its 8 neighbours than :data:`OUTLIER_SIGMAS` times the estimated noise, which a
+  median-based estimate does not see in heavy-tailed mixing noise) get their squared excess as
+  variance, as :func:`~mcdenoise.prep.inputs.estimate_variance` does for fireflies in the
+  colour; NLM then averages them with their neighbours instead of keeping a patch that matches
+  nothing (the rare-patch effect of NLM, Buades, Coll & Morel 2005).
 * A feature with a variance buffer keeps it (it is the sample variance, no estimate to cap).
 
 The NLM is the same 7×7 window as before: the whole change costs a normal length, a 3×3 max
-and a 3×3 mean per feature. Measured alternatives on the same tuning renders (the four
-``data/samples`` scenes and three depth-of-field variants of the ``dof`` spec, not the
-out-of-distribution set), ``kpcn`` relMSE geometric mean over 14 images (4 and 16 spp): capped
-one-scale prefilter 0.0162; this module 0.0116; an 11×11 window on top 0.0110 (2.5× the
-prefilter's time, over the 4K time bound); a 2×2-mean pyramid of NLM levels merged where they
-agree within the noise (intersection of confidence intervals, Katkovnik 1999) 0.0127-0.0150
-whatever the gate (the coarse levels blur the partly defocused texture the reference keeps);
-a 3×3-median guide for the patch distances 0.0160 (4× better on the defocused horizon, 2-3×
-worse on in-focus checkerboards); no cap anywhere 0.0112, but 20-40 % worse than the capped
-prefilter at 16 spp on the textured ``dof`` and ``materials`` samples (the neighbourhood estimate takes texture for noise).
+and a 3×3 mean per feature. Measured alternatives on tuning renders (the four
+``data/samples`` scenes and three renders of the ``dof`` spec, at 4 and 16 spp, plain copies;
+not the out-of-distribution set), ``kpcn`` relMSE geometric mean over 14 images: the capped
+one-scale prefilter 0.0162, this module 0.0116, with an 11×11 window 0.0110 (2.5× the
+prefilter's time, which the 4K time bound does not leave); a 3×3-median guide for the patch
+distances 0.0159 (4× better on the defocused horizon, 3× worse on the in-focus checkerboards);
+no cap anywhere 0.0112, but 17-29 % worse than the capped prefilter at 16 spp on the textured
+``dof`` and ``materials`` samples (the neighbourhood estimate takes texture for noise). Over
+12 of those images (capped 0.0159, this module 0.0108), a 2×2-mean pyramid of NLM levels
+merged where they agree within the noise (intersection of confidence intervals, Katkovnik
+1999) gave 0.0146-0.0152 whatever the gate: the coarse levels blur the partly defocused
+texture the reference keeps. Numbers and commands: ``docs/results/kpcn.md``.
 """
 
 from __future__ import annotations
