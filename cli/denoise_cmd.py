@@ -26,8 +26,11 @@ from tqdm import tqdm
     show_default=True,
     help="Method (see `mcdenoise methods`, which lists the aliases too, e.g. xbf for "
     "cross-bilateral), a comma-separated list, 'all' (every available method; one that "
-    "cannot run on an input is skipped there, with the reason), or 'auto' (the best "
-    "available method that accepts the input: --verbose says which and why).",
+    "cannot run on an input is skipped there, with the reason), 'auto' (the best "
+    "available method that accepts the input: --verbose says which and why), or an "
+    "external command, 'cmd:PROGRAM ARGS {input} {output}' ({input}: one EXR with every "
+    "buffer; {color}, {albedo}, {normal}: one file each, PFM or {color:exr}; {output}: the "
+    "EXR whose R,G,B it writes; -p timeout=SECONDS, default 600; see docs/methods.md).",
 )
 @click.option(
     "-p",
