@@ -11,6 +11,9 @@ files mcdenoise hands to a command against an independent reader. Modes::
     external_denoiser.py fail                 a message on stderr, exit status 3
     external_denoiser.py sleep SECONDS        sleeps
     external_denoiser.py nothing              exits 0 without writing anything
+    external_denoiser.py oidn C A N OUT       OIDN (pyoidn, RT filter, HDR, quality high) on
+                                              colour C, albedo A, normal N: the wrapper of
+                                              the issue's check against the built-in ``oidn``
     external_denoiser.py garbage OUT          writes a file that is no image
     external_denoiser.py half IN OUT          writes an output of half IN's width
 
@@ -104,6 +107,19 @@ def main(argv: list[str]) -> int:
     elif mode == "half":
         rgb = _rgb(args[0])
         _write(args[1], rgb[:, : rgb.shape[1] // 2])
+    elif mode == "oidn":
+        import pyoidn
+
+        c, a, n = (_rgb(f) for f in args[:3])  # clamped as the built-in oidn method does
+        out = pyoidn.denoise(
+            np.ascontiguousarray(np.maximum(c, 0)),
+            np.ascontiguousarray(np.clip(a, 0, 1)),
+            np.ascontiguousarray(np.clip(n, -1, 1)),
+            hdr=True,
+            clean_aux=False,
+            quality="high",
+        )
+        _write(args[3], np.asarray(out, dtype=np.float32))
     elif mode == "garbage":
         with open(args[0], "wb") as f:
             f.write(b"not an image")

@@ -199,3 +199,12 @@ def test_a_named_command_is_found_by_its_name() -> None:
         registry.add_command(text + " --x", name="mine-blur")
     with pytest.raises(InputError, match="taken by a method"):
         registry.add_command(text, name="nlm")
+
+
+def test_oidn_through_a_command_equals_the_builtin_oidn() -> None:
+    pytest.importorskip("pyoidn")
+    fb = _frame(16, 20)
+    m = command_method(_cmd("oidn {color} {albedo} {normal} {output:pfm}").removeprefix("cmd:"))
+    got = denoise(fb, m).image
+    want = denoise(fb, "oidn").image
+    torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)
