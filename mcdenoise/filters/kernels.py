@@ -26,6 +26,13 @@ Policies (docs/hard-cases.md items 15, 17, 20):
   number falls back to its own (centre) value, never 0/0.
 * **Tiling**: every pixel sums its offsets in the same order whatever the tile size, so tiled
   and untiled results agree to rounding (bit-identical for :func:`apply_kernels`).
+* **Centre weight** (:func:`accumulate_weighted`, ``centre="max"``): the pixel's own weight is
+  replaced by the largest weight of its other neighbours (Buades, Coll, Morel 2005, "A review
+  of image denoising algorithms", SIAM MMS 4(2), section 5.1). A distance-based weight gives
+  the centre the best possible score, 1; a pixel whose neighbourhood matches nothing -- a
+  firefly above all -- then keeps its own value whatever its noise. With the rule it is
+  averaged with its best matches instead; where everything matches (flat regions) the
+  largest weight is about 1 and nothing changes.
 
 Everything is plain differentiable torch: gradients flow to the image, the weights and every
 tensor the callback uses. Under autograd each offset's weights are kept for the backward pass
@@ -44,8 +51,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Literal
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from mcdenoise.errors import InputError
@@ -185,8 +194,13 @@ def _accumulate(
     k: int,
     tile: tuple[int, int],
     tap_fn: Callable[[int, slice, slice], Tensor] | None = None,
+    centre_max: bool = False,
 ) -> Tensor:
     """The shared loop.
+
+    With ``centre_max`` the weight of offset ``(0, 0)`` is not asked for: the centre gets the
+    largest weight of the other offsets, added after them (a pixel with no other weight keeps
+    its own value through the underflow rule).
 
     With ``tap_fn(index, ys, xs)`` (weights of one tap over an image region), the kernels are
     taken as already normalised: each pixel keeps its total mass ``Σ_all w`` (in- and
@@ -205,13 +219,28 @@ def _accumulate(
         shape = (ty1 - ty0, tx1 - tx0)
         acc = image.new_zeros((b, c, *shape))  # Σ w x over in-image taps   (B, C, th, tw)
         wsum = image.new_zeros((b, 1, *shape))  # Σ w over in-image taps    (B, 1, th, tw)
+        wmax = image.new_zeros((b, 1, *shape)) if centre_max else None  # max w, off-centre
+        grad = torch.is_grad_enabled()
         for win in _windows(k, h, w, ty0, ty1, tx0, tx1):
+            if wmax is not None and win.dy == 0 and win.dx == 0:
+                continue
             wt = weight_fn(win)  # (B, 1, h', w')
             if wt is None:
                 continue
             acc[:, :, win.ty, win.tx].addcmul_(win.neighbour(image), wt)
             wsum[:, :, win.ty, win.tx].add_(wt)
+            if wmax is not None:
+                if grad:  # out of place: autograd keeps the maximum's inputs
+                    ty, tx = win.ty, win.tx
+                    pad = (tx.start, shape[1] - tx.stop, ty.start, shape[0] - ty.stop)
+                    wmax = torch.maximum(wmax, F.pad(wt, pad))  # weights >= 0: 0 is neutral
+                else:
+                    view = wmax[:, :, win.ty, win.tx]
+                    torch.maximum(view, wt, out=view)
         centre = image[:, :, ty0:ty1, tx0:tx1]
+        if wmax is not None:
+            acc.addcmul_(centre, wmax)
+            wsum.add_(wmax)
         if tap_fn is not None:
             mass = wsum.clone()  # + Σ w over out-of-image taps, border strips only
             for dy in range(-r, r + 1):
@@ -329,6 +358,7 @@ def accumulate_weighted(
     weight_fn: WeightFn,
     kernel_size: int,
     *,
+    centre: Literal["one", "max"] = "one",
     tile: int | tuple[int, int] | None = None,
 ) -> Tensor:
     """Weighted mean over a k×k window with weights computed per offset by ``weight_fn``.
@@ -343,6 +373,9 @@ def accumulate_weighted(
         image: ``(B, C, H, W)`` values to average (linear, any range), float32/float64.
         weight_fn: the weight callback; must be differentiable if gradients are wanted.
         kernel_size: odd window edge ``k``.
+        centre: ``"one"``: the centre's weight is what ``weight_fn`` gives for offset
+            ``(0, 0)``; ``"max"``: the largest weight of the other offsets (Buades 2005; see
+            the module docstring), ``weight_fn`` is then not called for ``(0, 0)``.
         tile: output tile edge (or ``(th, tw)``); default :data:`CALLBACK_TILE`.
 
     Returns:
@@ -357,8 +390,12 @@ def accumulate_weighted(
     """
     image = check_image(image, "image")
     k = check_kernel_size(kernel_size)
+    if centre not in ("one", "max"):
+        raise InputError(f"centre must be 'one' or 'max', got {centre!r}")
     _, _, h, w = image.shape
-    return _accumulate(image, weight_fn, k, _tile_size(tile, CALLBACK_TILE, h, w))
+    return _accumulate(
+        image, weight_fn, k, _tile_size(tile, CALLBACK_TILE, h, w), centre_max=centre == "max"
+    )
 
 
 def neg_exp(e: Tensor) -> Tensor:

@@ -33,6 +33,20 @@ replace it (same sums). Terms are clamped at a value whose weight is below ``e^-
 the box filter, so one huge difference (a firefly) neither overflows nor swamps the precision
 of the cumulative sums.
 
+Robustness to one outlier (``patch_trim`` = τ, off by default): a firefly in the patch of a
+pixel makes that patch unlike every other (its term is thousands of noise units), so the pixel
+refuses all its neighbours and keeps its own noisy value; and a firefly that is itself the
+centre sits in a patch that matches nothing, so it keeps its value too. With τ the largest term
+of the patch other than the pair's own (``p ≠ 0``) counts at most τ per channel::
+
+    Σ_p t_p  →  Σ_p t_p - (max_{p≠0} t_p - C τ)⁺
+
+(a trimmed distance, one term: several mismatched pixels -- an edge crossing the patch -- still
+separate the patches). The pair's own term is never capped, so a firefly is still refused as
+a neighbour. The nearest rule of the classic literature, a centre weight equal to the largest
+weight of the other neighbours (Buades, Coll, Morel 2005; ``centre_weight="max"``), is offered
+too; on the demo renders it raised the error of clean scenes (``docs/results/filters.md``).
+
 Optional feature terms (Rousselle, Manzi, Zwicker 2013): per-pixel feature distances
 ``D_f = mean_ch (f_i - f_j)² / (k_f,i² max(τ_f, var_f,i, |∇f_i|²))`` with
 ``w_f = exp(-D_f)``; the final weight is ``min(w_colour, min_f w_f)`` (``combine="min"``, as in
@@ -45,6 +59,7 @@ With α > 0 a pair of patches that differ by less than the noise gets weight 1 w
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import torch
@@ -94,6 +109,8 @@ def non_local_means(
     feature_gradient: bool = True,
     combine: Literal["min", "product"] = "min",
     eps: float = NLM_EPS,
+    centre_weight: Literal["one", "max"] = "one",
+    patch_trim: float = math.inf,
     tile: int | tuple[int, int] | None = None,
 ) -> Tensor:
     """Filter ``color`` with (feature-augmented) non-local means.
@@ -125,6 +142,17 @@ def non_local_means(
         feature_gradient: include ``|∇f_i|²`` in the feature normaliser (Rousselle 2013).
         combine: ``"min"`` or ``"product"`` of the colour and feature weights.
         eps: ε of the variance-normalised denominator.
+        centre_weight: ``"one"``: the pixel's own weight is 1 (its patch distance to itself
+            is 0); ``"max"``: the largest weight of its other neighbours (Buades 2005), so a
+            pixel whose patch matches nothing (a firefly) is averaged with its best matches
+            instead of keeping its value.
+        patch_trim: τ >= 0 (``inf``: off, the paper's distance): with ``color_var``, the largest
+            term of each patch other than the compared pair's own counts at most τ per channel
+            (in noise units: two equal pixels score about ``1 - α``), so one outlier inside a
+            patch -- a firefly next to the pixel -- cannot make every patch around it unlike
+            every other, nor hide a neighbour whose patch holds it. The pair's own term stays
+            whole: it decides whether ``c_j`` may be averaged into ``c_i``, and a firefly must
+            stay refused as a neighbour. The ``nlm`` method uses 2 (``docs/results/filters.md``).
         tile: output tile of the kernel loop (memory bound); the result does not depend on it
             beyond float rounding of the cumulative sums.
 
@@ -162,6 +190,13 @@ def non_local_means(
     pair_min = pair_min and var_cap != float("inf")  # min(∞ · v_i, v_j) is v_j (0 · ∞ is NaN)
     if combine not in ("min", "product"):
         raise InputError(f"combine must be 'min' or 'product', got {combine!r}")
+    if centre_weight not in ("one", "max"):
+        raise InputError(f"centre_weight must be 'one' or 'max', got {centre_weight!r}")
+    if isinstance(patch_trim, bool) or not isinstance(patch_trim, int | float):
+        raise InputError(f"patch_trim must be a number >= 0 (inf: off), got {patch_trim!r}")
+    if not patch_trim >= 0:
+        raise InputError(f"patch_trim must be >= 0 (inf: off), got {patch_trim!r}")
+    trim = var is not None and f > 0 and patch_trim != math.inf
     bw = check_param(k if var is not None else h, "k" if var is not None else "h", color)
 
     # Colour distance: d² = box(t) / (count · bw_i²); t is clamped at `upper` before the box
@@ -178,6 +213,7 @@ def non_local_means(
     vden = vmean + eps if vmean is not None else None
     n_ch = g.shape[1]
     upper_c = upper * n_ch  # the terms below are summed (not averaged) over channels
+    tau_c = float(patch_trim) * n_ch  # cap of the largest context term (channels summed)
     cut = exp_cut(dtype)
     _, _, height, width = color.shape
 
@@ -220,7 +256,10 @@ def non_local_means(
         pad = (px0 - (x0 - f - 1), (x1 + f) - px1, py0 - (y0 - f - 1), (y1 + f) - py1)
         if any(pad):
             t = F.pad(t, pad)  # zero terms outside the valid region
-        t = _box_sums(t, f)  # (B,1,h,w)
+        if trim:  # Σ_p t_p - (max_{p≠0} t_p - τ)⁺
+            t = _box_sums(t, f) - (_ring_max(t, f) - tau_c).clamp_min(0.0)
+        else:
+            t = _box_sums(t, f)  # (B,1,h,w)
         # Number of valid pairs in each clipped patch (separable), folded into one scale.
         cy = _counts(y0, y1, f, vy0, vy1, t)
         cx = _counts(x0, x1, f, vx0, vx1, t)
@@ -232,13 +271,20 @@ def non_local_means(
         rx = (1.0 / cx).view(1, -1) if cx is not None else 1.0 / n
         return t * (ry * rx * scale)
 
+    refuse = centre_weight == "max"
+
     def weight_fn(win: Window) -> Tensor:
         e = colour_distance(win).clamp(0.0, cut)
+        if refuse:
+            # Distances at or above _MAX_DIST are where the clamp of the terms put them, not
+            # what they are: they count as 0, so that a pixel whose neighbours are all refused
+            # keeps its own value instead of taking the centre weight of tied refusals.
+            e = torch.where(e >= _MAX_DIST, cut, e)
         if feats is not None:
             e = feats(win, e)
         return neg_exp(e)
 
-    return accumulate_weighted(color, weight_fn, 2 * r + 1, tile=tile)
+    return accumulate_weighted(color, weight_fn, 2 * r + 1, centre=centre_weight, tile=tile)
 
 
 def _box_sums(t: Tensor, f: int) -> Tensor:
@@ -263,6 +309,22 @@ def _box_sums(t: Tensor, f: int) -> Tensor:
     t = cs[..., n:] - cs[..., :-n]  # horizontal box sums
     cs = t.cumsum(dim=2)
     return cs[:, :, n:] - cs[:, :, :-n]
+
+
+def _ring_max(t: Tensor, f: int) -> Tensor:
+    """Largest term of each ``(2f+1)²`` window of ``t`` (laid out as for :func:`_box_sums`)
+    except its centre, ``(B, 1, h, w)``: the max of four rectangular pools (the rows above and
+    below the centre, and the centre row's left and right parts)."""
+    n = 2 * f + 1
+    h, w = t.shape[-2] - n, t.shape[-1] - n
+    top = F.max_pool2d(t[:, :, 1 : f + h, 1:], (f, n), stride=1)
+    bottom = F.max_pool2d(t[:, :, f + 2 :, 1:], (f, n), stride=1)
+    left = F.max_pool2d(t[:, :, f + 1 : f + 1 + h, 1 : f + w], (1, f), stride=1)
+    right = F.max_pool2d(t[:, :, f + 1 : f + 1 + h, f + 2 :], (1, f), stride=1)
+    return torch.maximum(
+        torch.maximum(top[..., :h, :w], bottom[..., :h, :w]),
+        torch.maximum(left[..., :h, :w], right[..., :h, :w]),
+    )
 
 
 def _counts(a0: int, a1: int, f: int, v0: int, v1: int, like: Tensor) -> Tensor | None:
@@ -365,6 +427,8 @@ class NonLocalMeans(nn.Module):
         feature_gradient: bool = True,
         combine: Literal["min", "product"] = "min",
         eps: float = NLM_EPS,
+        centre_weight: Literal["one", "max"] = "one",
+        patch_trim: float = math.inf,
         tile: int | tuple[int, int] | None = None,
     ) -> None:
         super().__init__()
@@ -380,6 +444,8 @@ class NonLocalMeans(nn.Module):
         self.feature_gradient = feature_gradient
         self.combine = combine
         self.eps = eps
+        self.centre_weight = centre_weight
+        self.patch_trim = patch_trim
         self.tile = tile
 
     def forward(
@@ -413,6 +479,8 @@ class NonLocalMeans(nn.Module):
             feature_gradient=self.feature_gradient,
             combine=self.combine,
             eps=self.eps,
+            centre_weight=self.centre_weight,
+            patch_trim=self.patch_trim,
             tile=self.tile,
         )
 

@@ -233,6 +233,38 @@ def test_gradcheck_per_pixel_bandwidths(scale: float) -> None:
     assert torch.autograd.gradcheck(f, (a, b, gm, c.requires_grad_(True)))
 
 
+def test_gradcheck_centre_max() -> None:
+    g = torch.Generator().manual_seed(24)
+    c = torch.rand(1, 2, 4, 4, generator=g, dtype=torch.float64).requires_grad_(True)
+    var = torch.rand(1, 1, 4, 4, generator=g, dtype=torch.float64) * 0.1
+    b = (0.3 + torch.rand(1, 1, 4, 4, generator=g, dtype=torch.float64)).requires_grad_(True)
+
+    def f(b, c):
+        return cross_bilateral(
+            c, kernel_size=3, sigma_spatial=1.0, sigma_color=b, color_var=var, centre_weight="max"
+        )
+
+    assert torch.autograd.gradcheck(f, (b, c))
+
+
+def test_centre_max_averages_an_isolated_outlier_with_its_neighbours() -> None:
+    # A bright pixel that no neighbour resembles keeps its value with the centre weight 1;
+    # with the largest-other rule it is averaged with its best neighbours. Its neighbours
+    # still refuse it (not spread).
+    x = torch.ones(1, 3, 9, 9, dtype=torch.float64)
+    x[:, :, 4, 4] = 1e4
+    var = torch.full((1, 1, 9, 9), 0.01, dtype=torch.float64)
+    var[:, :, 4, 4] = 1e7  # its own noise: one bright sample
+    kw = {"kernel_size": 5, "sigma_spatial": 2.0, "sigma_color": 1.0, "color_var": var}
+    one = cross_bilateral(x, **kw)
+    top = cross_bilateral(x, centre_weight="max", **kw)
+    assert float(one[0, 0, 4, 4]) > 0.8e4  # its neighbours' weights are ~e^-5: it stays
+    assert float(top[0, 0, 4, 4]) < 0.1 * float(one[0, 0, 4, 4])
+    mask = torch.ones(9, 9, dtype=torch.bool)
+    mask[4, 4] = False
+    assert torch.equal(top[0, :, mask], x[0, :, mask])
+
+
 def test_gradcheck_scalar_tensor_bandwidth() -> None:
     g = torch.Generator().manual_seed(23)
     c = torch.rand(2, 3, 4, 3, generator=g, dtype=torch.float64)

@@ -194,6 +194,52 @@ def test_gradcheck_callback_parameters() -> None:
     assert torch.autograd.gradcheck(f, (s,))
 
 
+@pytest.mark.parametrize("tile", [2, 100])
+def test_centre_max_equals_explicit_kernels_with_the_centre_replaced(tile: int) -> None:
+    # Buades 2005's rule: the centre's weight is the largest of the other in-image weights.
+    g = torch.Generator().manual_seed(8)
+    x = torch.rand(2, 3, 6, 5, generator=g, dtype=torch.float64)
+    w = torch.rand(2, 25, 6, 5, generator=g, dtype=torch.float64)
+    inside = F.unfold(torch.ones(2, 1, 6, 5, dtype=torch.float64), 5, padding=2).view(2, 25, 6, 5)
+    others = (w * inside).clone()
+    others[:, 12] = 0
+    replaced = w.clone()
+    replaced[:, 12] = others.max(dim=1).values
+    called = []
+
+    def fn(win: Window) -> torch.Tensor:
+        called.append((win.dy, win.dx))
+        return w[:, win.index : win.index + 1, win.yi, win.xi]
+
+    out = accumulate_weighted(x, fn, 5, centre="max", tile=tile)
+    torch.testing.assert_close(out, reference_kernels(x, replaced, True), rtol=1e-12, atol=1e-12)
+    assert (0, 0) not in called
+
+
+def test_centre_max_with_no_other_weight_keeps_the_pixel() -> None:
+    x = torch.rand(1, 3, 4, 4, dtype=torch.float64)
+    zero = accumulate_weighted(
+        x, lambda win: torch.zeros_like(win.centre(x[:, :1])), 3, centre="max"
+    )
+    assert torch.equal(zero, x)
+    assert torch.equal(accumulate_weighted(x, lambda win: None, 1, centre="max"), x)
+
+
+def test_gradcheck_centre_max() -> None:
+    g = torch.Generator().manual_seed(9)
+    x = torch.rand(1, 2, 5, 4, generator=g, dtype=torch.float64).requires_grad_(True)
+    s = (torch.rand(1, 1, 5, 4, generator=g, dtype=torch.float64) + 0.5).requires_grad_(True)
+
+    def f(x: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        def fn(win: Window) -> torch.Tensor:
+            d = (win.neighbour(x) - win.centre(x)).square().sum(1, keepdim=True)
+            return torch.exp(-(win.dy**2 + 2 * win.dx**2) * win.centre(s) - d)
+
+        return accumulate_weighted(x, fn, 3, centre="max", tile=3)
+
+    assert torch.autograd.gradcheck(f, (x, s))
+
+
 @pytest.mark.parametrize(
     "make, match",
     [
@@ -209,6 +255,10 @@ def test_gradcheck_callback_parameters() -> None:
         ),
         (lambda: accumulate_weighted(torch.rand(1, 1, 4, 4), lambda w: None, 4), "odd"),
         (lambda: accumulate_weighted(torch.rand(1, 1, 4, 4), lambda w: None, -3), "odd"),
+        (
+            lambda: accumulate_weighted(torch.rand(1, 1, 4, 4), lambda w: None, 3, centre="min"),
+            "centre must be",
+        ),
     ],
 )
 def test_bad_input_is_a_one_line_input_error(make, match) -> None:

@@ -34,9 +34,13 @@ def naive_nlm(
     feats=(),
     fks=(),
     combine="min",
+    trim=None,
+    centre="one",
 ):
     """Direct patch loop (float64, tiny images): every pixel, every neighbour, every patch
-    pixel pair inside the image. Feature terms without variance / gradient normalisation."""
+    pixel pair inside the image. Feature terms without variance / gradient normalisation.
+    ``trim``: the largest term with ``p != 0`` counts at most ``trim``; ``centre="max"``: the
+    centre's weight is the largest of the others', and a distance of 50 or more is weight 0."""
     bsz, ch, hh, ww = c.shape
     vm = var.mean(1) if var is not None else None
     out = torch.zeros_like(c)
@@ -44,13 +48,13 @@ def naive_nlm(
         for y in range(hh):
             for x in range(ww):
                 num = torch.zeros(ch, dtype=c.dtype)
-                den = 0.0
+                den = wmax = 0.0
                 for dy in range(-r, r + 1):
                     for dx in range(-r, r + 1):
                         yj, xj = y + dy, x + dx
                         if not (0 <= yj < hh and 0 <= xj < ww):
                             continue
-                        s, n = 0.0, 0
+                        s, n, ring = 0.0, 0, []
                         for py in range(-f, f + 1):
                             for px in range(-f, f + 1):
                                 a0, a1, b0, b1 = y + py, x + px, yj + py, xj + px
@@ -67,16 +71,26 @@ def naive_nlm(
                                     )
                                 s += d2
                                 n += 1
+                                if (py, px) != (0, 0):
+                                    ring.append(d2)
+                        if trim is not None and ring:
+                            s -= max(max(ring) - trim, 0.0)
                         bw = _p(k, b, y, x) if vm is not None else _p(h, b, y, x)
                         e = max(0.0, s / n / bw**2)
                         for ft, fk in zip(feats, fks):
                             dfe = float(((ft[b, :, y, x] - ft[b, :, yj, xj]) ** 2).mean())
                             dfe /= _p(fk, b, y, x) ** 2
                             e = max(e, dfe) if combine == "min" else e + dfe
-                        wgt = math.exp(-e)
+                        wgt = math.exp(-e) if centre == "one" or e < 50 else 0.0
+                        if centre == "max" and (dy, dx) == (0, 0):
+                            continue
+                        wmax = max(wmax, wgt) if (dy, dx) != (0, 0) else wmax
                         num += wgt * c[b, :, yj, xj]
                         den += wgt
-                out[b, :, y, x] = num / den
+                if centre == "max":
+                    num += wmax * c[b, :, y, x]
+                    den += wmax
+                out[b, :, y, x] = num / den if den > 0 else c[b, :, y, x]
     return out
 
 
@@ -102,6 +116,85 @@ def test_box_filter_equals_naive_patch_loop(pair: str, r: int, f: int, tile: int
     )
     ref = naive_nlm(c, r, f, var=var, k=0.5, alpha=1.0, pair=pair)
     torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("trim,centre", [(0.0, "one"), (0.3, "max"), (None, "max")])
+@pytest.mark.parametrize("r,f,tile", [(2, 1, 4), (3, 2, 5)])
+def test_trim_and_centre_max_equal_naive_loop(trim, centre: str, r: int, f: int, tile: int) -> None:
+    c = rand(1, 3, 8, 9, seed=4)
+    c[0, :, 3, 4] += 5.0  # an outlier, so that trimming bites
+    var = rand(1, 1, 8, 9, seed=5, hi=0.05)
+    kwargs = {"patch_trim": trim} if trim is not None else {}
+    out = non_local_means(
+        c, search_radius=r, patch_radius=f, k=0.5, alpha=1.0, color_var=var, var_pair="min",
+        var_cap=4.0, centre_weight=centre, tile=tile, **kwargs,
+    )  # fmt: skip
+    ref = naive_nlm(
+        c, r, f, var=var, k=0.5, alpha=1.0, pair="min", cap=4.0, trim=trim, centre=centre
+    )
+    torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-12)
+
+
+def test_patch_trim_inf_is_the_paper_distance(scene) -> None:
+    x, v = scene.noisy, scene.var
+    base = non_local_means(x, search_radius=3, patch_radius=1, color_var=v)
+    assert torch.equal(
+        non_local_means(x, search_radius=3, patch_radius=1, color_var=v, patch_trim=math.inf), base
+    )
+    # a trim that never bites (above every term) changes nothing either
+    big = non_local_means(x, search_radius=3, patch_radius=1, color_var=v, patch_trim=1e6)
+    torch.testing.assert_close(big, base, rtol=1e-12, atol=1e-12)
+
+
+def _flat_with_firefly(seed: int = 0):
+    """A grey 1.0 seen with noise of variance 0.01 (a 16-spp-like render), one pixel 1e4x
+    brighter whose variance says it is one sample of 16 (value² · 15 / 16 / 16)."""
+    g = torch.Generator().manual_seed(seed)
+    h = w = 21
+    var = torch.full((1, 1, h, w), 0.01, dtype=torch.float64)
+    x = 1.0 + 0.1 * torch.randn(1, 3, h, w, generator=g, dtype=torch.float64)
+    x[:, :, 10, 10] = 1e4
+    var[:, :, 10, 10] = 1e8 * 15 / 256
+    return x, var
+
+
+def test_patch_trim_lets_the_firefly_neighbours_be_filtered() -> None:
+    # Without the trim the 8 pixels around the firefly hold it in their patches, so their
+    # patches are unlike every other and they keep much of their noise; with it they are
+    # averaged like the rest. The firefly itself is never spread: it is refused as a neighbour.
+    x, v = _flat_with_firefly()
+    ring = torch.ones(21, 21, dtype=torch.bool)
+    ring[9:12, 9:12] = False
+    ring = ~ring
+    ring[10, 10] = False
+    kw = {"search_radius": 5, "patch_radius": 1, "k": 0.45, "alpha": 2.0, "color_var": v}
+    kw |= {"var_pair": "min", "var_cap": 16.0}
+    err = {}
+    for trim in (math.inf, 2.0):
+        out = non_local_means(x, patch_trim=trim, **kw)
+        err[trim] = float(((out[0, :, ring] - 1.0) ** 2).mean())
+        mask = torch.ones(21, 21, dtype=torch.bool)
+        mask[10, 10] = False
+        assert float(out[0, :, mask].max()) < 1.5  # not spread
+    # measured: 4.5e-4 without the trim (the firefly's term, ~8 in d², scales every weight
+    # but the pixel's own down), 2.5e-5 with it
+    assert err[2.0] < 0.25 * err[math.inf]
+
+
+def test_gradcheck_trim_and_centre_max() -> None:
+    g = torch.Generator().manual_seed(23)
+    c = torch.rand(1, 2, 5, 5, generator=g, dtype=torch.float64)
+    c[0, :, 2, 2] += 3.0
+    var = torch.rand(1, 1, 5, 5, generator=g, dtype=torch.float64) * 0.05 + 0.01
+    k = (0.3 + torch.rand(1, 1, 5, 5, generator=g, dtype=torch.float64)).requires_grad_(True)
+
+    def fn(k, c):
+        return non_local_means(
+            c, search_radius=1, patch_radius=1, k=k, alpha=1.0, color_var=var,
+            patch_trim=0.2, centre_weight="max",
+        )  # fmt: skip
+
+    assert torch.autograd.gradcheck(fn, (k, c.clone().requires_grad_(True)))
 
 
 def test_var_cap_matches_naive_loop_and_inf_is_the_sum() -> None:
@@ -366,6 +459,9 @@ V = torch.rand(1, 1, 6, 6)
         (dict(color_var=V, combine="max"), "combine"),
         (dict(color_var=V, var_pair="avg"), "var_pair"),
         (dict(color_var=V, var_cap=0.0), "var_cap must be a number >= 1"),
+        (dict(color_var=V, patch_trim=-1.0), "patch_trim must be >= 0"),
+        (dict(color_var=V, patch_trim="2"), "patch_trim must be a number"),
+        (dict(color_var=V, centre_weight="mean"), "centre_weight"),
         (dict(color_var=torch.rand(1, 1, 5, 6)), "must match"),
         (dict(h=0.1, k=torch.rand(1, 1, 6, 6)), None),  # k is ignored in the h form
         (dict(color_var=V, k=torch.rand(1, 2, 6, 6)), "k must be"),

@@ -46,7 +46,12 @@ def _filters(tile):
         nlm = non_local_means(
             c, search_radius=3, patch_radius=3, color_var=v, features=f, tile=tile
         )
-    return xbf, nlm
+        robust = {"centre_weight": "max", "tile": tile}
+        xbf_max = cross_bilateral(c, f, kernel_size=7, color_var=v, **robust)
+        nlm_trim = non_local_means(
+            c, search_radius=3, patch_radius=2, color_var=v, patch_trim=0.5, **robust
+        )
+    return xbf, nlm, xbf_max, nlm_trim
 
 
 @pytest.mark.parametrize("tile", [32, (16, 50)])
