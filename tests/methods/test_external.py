@@ -208,3 +208,30 @@ def test_oidn_through_a_command_equals_the_builtin_oidn() -> None:
     got = denoise(fb, m).image
     want = denoise(fb, "oidn").image
     torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)
+
+
+def test_an_experiment_judges_a_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``mcdenoise eval --experiment`` with ``cmd:`` methods in its list: the working one is
+    measured, the failing one is a failed unit whose error quotes the command's stderr."""
+    import csv
+
+    monkeypatch.syspath_prepend(str(REPO / "tests" / "experiments"))
+    from synthetic_data import make_render_folder
+
+    make_render_folder(tmp_path / "data", scenes=("alpha",), size=(12, 16), spp=(1,))
+    blur, fail = _cmd("blur {input} {output}"), _cmd("fail {input} {output}")
+    spec = tmp_path / "exp.toml"
+    spec.write_text(
+        f"methods = [{json.dumps(blur)}, {json.dumps(fail)}]\nmetrics = ['relmse']\n"
+        "repetitions = 1\nwarmup = 0\nthreads = 1\n[scenes]\nfolder = 'data'\n",
+        encoding="utf-8",
+    )
+    r = _cli("eval", "--experiment", spec, "-o", tmp_path / "rep")
+    rows = list(csv.DictReader((tmp_path / "rep" / "results.csv").open(encoding="utf-8")))
+    by = {row["base_method"][:22]: row for row in rows if row["method"] != "noisy"}
+    assert set(by) == {"cmd-external_denoiser-"}, (r.output, rows)
+    done = [row for row in rows if row["method"] == blur]
+    failed = [row for row in rows if row["method"] == fail]
+    assert len(done) == 1 and done[0]["failed"] == "false" and float(done[0]["relmse"]) > 0
+    assert len(failed) == 1 and failed[0]["failed"] == "true"
+    assert "the tensor has the wrong shape" in failed[0]["error"]
