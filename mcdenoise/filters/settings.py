@@ -6,7 +6,8 @@ and the base bandwidths the learned Kalantari models multiply per pixel. Their d
 tuned on path-traced Mitsuba 3 renders at 4 and 16 spp, with and without feature variances
 (``docs/results/methods-notes.md``). Besides the filter's own parameters each holds the
 preparation choices of the pipeline: which guide ``features`` to use, whether to ``prefilter``
-the noisy ones, and whether to ``demodulate`` by the albedo (offset ``albedo_eps``).
+the noisy ones, whether to ``demodulate`` by the albedo (offset ``albedo_eps``), and what to do
+with ``fireflies`` (``clamp``, ``keep-energy`` or ``off``; :mod:`mcdenoise.prep.fireflies`).
 
 Guide features are in the units of the preparation layer (``prep/inputs.py``): albedo as it
 is, unit normals, depth and position divided by the scene extent.
@@ -57,6 +58,8 @@ class XbfSettings:
     albedo_eps: float = 1e-2
     prefilter: bool = True
     features: tuple[str, ...] = GUIDE_FEATURES
+    fireflies: str = "clamp"
+    variance_prior: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,8 @@ class NlmSettings:
     albedo_eps: float = 1e-2
     prefilter: bool = True
     features: tuple[str, ...] = GUIDE_FEATURES
+    fireflies: str = "clamp"
+    variance_prior: float = 0.0
 
 
 S = TypeVar("S", XbfSettings, NlmSettings)

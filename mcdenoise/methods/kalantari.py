@@ -5,7 +5,11 @@
 refusing an input without a guide the model was trained with) and runs it
 (:meth:`~mcdenoise.models.kalantari.KalantariModel.denoise_item`). The ``model`` parameter is a
 run folder or model file, default the shipped weights (:mod:`mcdenoise.models.weights`); an
-input without albedo gets the shipped no-albedo variant where there is one.
+input without albedo gets the shipped no-albedo variant where there is one. ``fireflies``
+(``clamp``, the default, ``keep-energy`` or ``off``) is the firefly handling of the
+preparation layer (:mod:`mcdenoise.prep.fireflies`): a firefly otherwise passes through the
+learned filter as it does through the fixed one (``kalantari-nlm`` at 2 spp on the demo's
+``caustics_glass``: relMSE 41).
 
 A model needs every guide it was trained with and, for each guide it was trained with the
 variance of, that variance (the shipped models: all four guides with their variances, the
@@ -37,19 +41,36 @@ from mcdenoise.models.weights import (
     shipped_model_for,
     shipped_model_path,
 )
+from mcdenoise.prep.fireflies import params_mode
 from mcdenoise.prep.kalantari import check_inputs, item_features, prepare_for_model
 
 
 def denoise_kalantari(
-    model: KalantariModel, buffers: FeatureBuffers, *, chunk_rows: int = 256
+    model: KalantariModel,
+    buffers: FeatureBuffers,
+    *,
+    chunk_rows: int = 256,
+    fireflies: str | None = None,
+    variance_prior: float | None = None,
 ) -> Tensor:
     """Denoise one image with ``model``; returns ``(3, H, W)`` float32 linear HDR colour.
+
+    ``fireflies``: ``clamp``, ``keep-energy`` or ``off`` (:mod:`mcdenoise.prep.fireflies`);
+    ``None``: the model's filter settings' (``clamp`` unless it was trained otherwise).
+    ``variance_prior``: the low-spp variance (:mod:`mcdenoise.prep.variance`); ``None``: the
+    model's settings' (0 for the shipped models, the per-pixel estimate they were trained with).
 
     Raises:
         MissingFeatureError: the image lacks a guide the model was trained with.
     """
     with single_threaded_ops():  # parallel over tiles and row bands instead (filters/parallel.py)
-        item = prepare_for_model(model.card, buffers, features=False)
+        item = prepare_for_model(
+            model.card,
+            buffers,
+            features=False,
+            fireflies=fireflies,
+            variance_prior=variance_prior,
+        )
         del item["color"]  # not filtered (it keeps the sanitised copy of the colour alive)
         feats = item_features(item, buffers.spp, regional=model.card.regional)
         return model.denoise_item(item, chunk_rows=chunk_rows, features=feats)
@@ -93,7 +114,13 @@ def _checker(kind: str) -> Callable[[FeatureBuffers, Mapping[str, Any]], str | N
 def _runner(kind: str) -> Callable[[FeatureBuffers, Mapping[str, Any], torch.device], Tensor]:
     def run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
         model = model_for(kind, b, str(params["model"]))
-        return denoise_kalantari(model.to(device), b)
+        prior = params.get("variance_prior")
+        return denoise_kalantari(
+            model.to(device),
+            b,
+            fireflies=params_mode(params),
+            variance_prior=None if prior in (None, "") else float(prior),
+        )
 
     return run
 
@@ -108,7 +135,7 @@ def _method(kind: str, what: str, priority: int) -> Method:
         summary=f"{what} predicted per pixel by an MLP (Kalantari 2015); -p model=RUN",
         requires=("color", *needs),
         uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
-        defaults={"model": SHIPPED},
+        defaults={"model": SHIPPED, "fireflies": "clamp", "variance_prior": 0.0},
         run=_runner(kind),
         priority=priority,
         check_input=_checker(kind),

@@ -28,14 +28,23 @@ from mcdenoise.prep.inputs import demodulate_inputs, guide_args, prepare_inputs
 #: they refuse it, and the image darkens: by 2.8 % on ``cornell_spp4``, 1.13 % with 16, at a
 #: lower relMSE (``docs/results/bias.md``).
 VAR_CAP = 16.0
+#: Degrees of freedom of the pooled variance the ``nlm`` method shrinks the per-pixel
+#: variance towards at 2-8 spp (``-p variance_prior``; :mod:`mcdenoise.prep.variance`): on the
+#: demo renders at 2 spp, after the firefly clamp, relMSE 0.137 -> 0.032 on ``caustics_glass``,
+#: 0.021 -> 0.011 on ``cornell``
+#: (``docs/results/bias.md``, "Fireflies and low spp"). NlmSettings keeps 0, the per-pixel
+#: estimate the learned ``kalantari-nlm`` was trained with.
+VARIANCE_PRIOR = 3.0
 
 
 def denoise_nlm(buffers: FeatureBuffers, **overrides: object) -> Tensor:
     """Denoise with variance-normalised NLM; returns the ``(3, H, W)`` float32 colour.
 
     Keyword overrides replace fields of :class:`NlmSettings` (as a library function its
-    ``var_cap`` is NlmSettings' 1, the fixed filter a learned model starts from; the registered
-    ``nlm`` method passes :data:`VAR_CAP`). Without a variance buffer the
+    ``var_cap`` is NlmSettings' 1 and its ``variance_prior`` 0, the fixed filter a learned model
+    starts from; the registered ``nlm`` method passes :data:`VAR_CAP` and
+    :data:`VARIANCE_PRIOR`). Fireflies are clamped first (``fireflies``,
+    :mod:`mcdenoise.prep.fireflies`). Without a variance buffer the
     variance is estimated from the colour (:func:`~mcdenoise.prep.inputs.estimate_variance`);
     guide features, when present, add Rousselle 2013 feature weights (``features=()`` turns
     them off).
@@ -46,7 +55,13 @@ def denoise_nlm(buffers: FeatureBuffers, **overrides: object) -> Tensor:
         torch.Size([3, 8, 8])
     """
     s = with_overrides(NlmSettings(), overrides)
-    inp = prepare_inputs(buffers, features=s.features, prefilter=s.prefilter)
+    inp = prepare_inputs(
+        buffers,
+        features=s.features,
+        prefilter=s.prefilter,
+        fireflies=s.fireflies,
+        variance_prior=s.variance_prior,
+    )
     irr, var, factor = demodulate_inputs(inp, enabled=s.demodulate, eps=s.albedo_eps)
     sig, fvars, floors = guide_args(inp, s)
     with torch.no_grad():
@@ -79,9 +94,13 @@ METHOD = Method(
     summary="non-local means, variance-normalised patches + feature weights (Rousselle 2012/13)",
     requires=("color",),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
-    defaults={**dataclass_defaults(NlmSettings), "var_cap": VAR_CAP},
+    defaults={
+        **dataclass_defaults(NlmSettings),
+        "var_cap": VAR_CAP,
+        "variance_prior": VARIANCE_PRIOR,
+    },
     run=_run,
     priority=20,
 )
 
-__all__ = ["METHOD", "VAR_CAP", "denoise_nlm"]
+__all__ = ["METHOD", "VARIANCE_PRIOR", "VAR_CAP", "denoise_nlm"]

@@ -42,6 +42,8 @@ from mcdenoise.filters.box import box_mean, median3
 from mcdenoise.filters.nlm import non_local_means
 from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, XbfSettings, feature_bandwidths
 from mcdenoise.io.buffers import FeatureBuffers, sanitize
+from mcdenoise.prep.fireflies import check_mode, remove_fireflies
+from mcdenoise.prep.variance import low_spp_variance
 
 #: NLM settings of the feature prefilter (variance-normalised, paper denominator ``v_i + v_j``).
 PREFILTER = {"search_radius": 5, "patch_radius": 3, "k": 1.0, "alpha": 1.0, "var_pair": "sum"}
@@ -70,6 +72,9 @@ class FilterInputs:
         estimated_features: features prefiltered with a variance estimated from themselves
             (``estimate_missing``).
         repaired: buffer name -> number of NaN/Inf/negative values repaired by sanitising.
+        fireflies: pixels the firefly handling (``prepare_inputs(fireflies=...)``) changed.
+        firefly_energy: ``(3,)`` colour summed over the image taken out of those pixels
+            (redistributed to their neighbours in ``"keep-energy"`` mode), or ``None``.
     """
 
     color: Tensor
@@ -81,6 +86,8 @@ class FilterInputs:
     estimated_variance: bool = False
     estimated_features: tuple[str, ...] = ()
     repaired: dict[str, int] = field(default_factory=dict)
+    fireflies: int = 0
+    firefly_energy: Tensor | None = None
 
 
 def robust_variance(var: Tensor) -> Tensor:
@@ -250,6 +257,8 @@ def prepare_inputs(
     prefilter: bool = True,
     estimate_missing: bool = False,
     prefilter_settings: Mapping[str, Any] | None = None,
+    fireflies: str = "off",
+    variance_prior: float = 0.0,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
 ) -> FilterInputs:
@@ -265,12 +274,23 @@ def prepare_inputs(
         prefilter_settings: NLM settings of the prefilter of features that have a variance
             buffer (default :data:`PREFILTER`, the classical filters' choice; ``kpcn`` uses
             :data:`PREFILTER_ESTIMATED`).
+        fireflies: ``"clamp"``, ``"keep-energy"`` or ``"off"`` (the default, so a caller that
+            does not ask gets the colour as it is): outlier pixels are clamped against their
+            5×5 neighbourhood before anything else sees the colour
+            (:func:`~mcdenoise.prep.fireflies.remove_fireflies`, with the raw albedo and
+            normal when present); the variance of a clamped pixel is scaled with it. Which
+            methods use it, and the bias: :mod:`mcdenoise.prep.fireflies`.
+        variance_prior: degrees of freedom ``ν₀`` of the pooled variance the renderer's
+            per-pixel variance is shrunk towards (:func:`~mcdenoise.prep.variance.low_spp_variance`,
+            after the firefly pass, before ``max(v, median_3×3(v))``); 0, the default, keeps
+            the per-pixel estimate (what the learned models were trained with).
         dtype, device: of the returned tensors.
 
     Raises:
         MissingFeatureError: when ``color`` is absent.
         InputError: for an unknown feature name.
     """
+    check_mode(fireflies)
     unknown = [f for f in features if f not in GUIDE_FEATURES]
     if unknown:
         raise InputError(f"unknown guide feature(s) {unknown}; known: {list(GUIDE_FEATURES)}")
@@ -283,10 +303,34 @@ def prepare_inputs(
     color = t("color")
     # One sample per pixel has no variance of the mean (the renderer writes 0): estimate it.
     usable_var = "color_var" in clean and buffers.spp != 1 and bool(clean["color_var"].max() > 0)
-    if usable_var:
-        color_var, estimated = robust_variance(t("color_var")), False
-    else:
-        color_var, estimated = estimate_variance(color), True
+    estimated = not usable_var
+    raw_var = t("color_var").mean(dim=1, keepdim=True) if usable_var else estimate_variance(color)
+    n_fireflies, firefly_energy, firefly_mask = 0, None, None
+    if fireflies != "off":
+        ff = remove_fireflies(
+            color,
+            raw_var,
+            fireflies,
+            albedo=t("albedo") if "albedo" in clean else None,
+            normal=t("normal") if "normal" in clean else None,
+        )
+        n_fireflies, firefly_energy, firefly_mask = ff.count, ff.removed[0], ff.mask
+        if n_fireflies:
+            color = ff.color
+            # The estimate is re-made from the cleaned colour (its noise level function no
+            # longer sees the outliers); the renderer's variance is scaled where clamped.
+            raw_var = estimate_variance(color) if estimated else ff.variance
+    pool_guides = {g: t(g) for g in ("albedo", "normal") if g in clean}
+    if not estimated and variance_prior > 0:
+        raw_var = low_spp_variance(
+            raw_var,
+            buffers.spp,
+            pool_guides,
+            prior_dof=variance_prior,
+            exclude=firefly_mask,
+            luminance=color.mean(dim=1, keepdim=True),
+        )
+    color_var = raw_var if estimated else robust_variance(raw_var)
     wanted = [f for f in features if f in clean]
     extent = _robust_extent(clean) if {"depth", "position"} & set(wanted) else None
     feats: dict[str, Tensor] = {}
@@ -301,6 +345,10 @@ def prepare_inputs(
         f = t(name) * scale
         if name + "_var" in clean:
             fvars[name] = t(name + "_var") * scale**2
+            if variance_prior > 0:  # as noisy as the colour's from a few samples
+                fvars[name] = low_spp_variance(
+                    fvars[name], buffers.spp, pool_guides, prior_dof=variance_prior
+                )
             if prefilter:
                 f = prefilter_feature(f, fvars[name], prefilter_settings or PREFILTER)
         elif estimate_missing:
@@ -321,6 +369,8 @@ def prepare_inputs(
         estimated_variance=estimated,
         estimated_features=tuple(estimated_features),
         repaired=repaired,
+        fireflies=n_fireflies,
+        firefly_energy=firefly_energy,
     )
 
 

@@ -237,11 +237,16 @@ def prepare_item(
     *,
     regional: bool = False,
     features: bool = True,
+    fireflies: str | None = None,
+    variance_prior: float | None = None,
 ) -> dict[str, Tensor]:
     """Filter inputs and raw features of one image, ``{name: (C, H, W)}``.
 
     ``guide_vars``: use the variances of these guides only (``None``: every one present), so
     an input with more buffers than a model was trained with is seen as the model expects.
+    ``fireflies``: the firefly handling (:mod:`mcdenoise.prep.fireflies`), default the
+    settings' own; ``variance_prior``: the low-spp variance (:mod:`mcdenoise.prep.variance`),
+    default the settings' own (0: the per-pixel estimate the shipped models were trained with).
 
     Keys: ``color`` (sanitised noisy colour), ``irr``/``irr_var`` (what the filter averages and
     its variance), ``factor`` (remodulation, ones without albedo), ``feat.<g>``/``fvar.<g>``
@@ -252,7 +257,11 @@ def prepare_item(
     given.
     """
     inp: FilterInputs = prepare_inputs(
-        buffers, features=tuple(guides), prefilter=settings.prefilter
+        buffers,
+        features=tuple(guides),
+        prefilter=settings.prefilter,
+        fireflies=settings.fireflies if fireflies is None else fireflies,
+        variance_prior=settings.variance_prior if variance_prior is None else variance_prior,
     )
     missing = [g for g in guides if g not in inp.features]
     if missing:  # e.g. position present but no usable scene extent
@@ -285,10 +294,14 @@ def prepare_for_model(
     reference: Tensor | None = None,
     *,
     features: bool = True,
+    fireflies: str | None = None,
+    variance_prior: float | None = None,
 ) -> dict[str, Tensor]:
     """The item :meth:`~mcdenoise.models.kalantari.KalantariModel.filter` needs for one image
     (:func:`prepare_item` with the model's kind, settings, guides and guide variances;
-    ``features=False``: without the features, see :func:`item_features`).
+    ``features=False``: without the features, see :func:`item_features`; ``fireflies``:
+    the firefly handling, default the model's settings', :mod:`mcdenoise.prep.fireflies`;
+    ``variance_prior``: likewise, :mod:`mcdenoise.prep.variance`).
 
     Raises:
         MissingFeatureError: the image lacks a guide the model was trained with.
@@ -303,6 +316,8 @@ def prepare_for_model(
         card.guide_vars,
         regional=card.regional,
         features=features,
+        fireflies=fireflies,
+        variance_prior=variance_prior,
     )
 
 
