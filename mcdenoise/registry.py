@@ -202,7 +202,8 @@ def _command(name: str) -> Method:
 def add_command(command: str, *, name: str | None = None) -> Method:
     """The method of the external command template ``command`` (without ``cmd:``), found
     from now on by :func:`get_method` under ``name`` (default ``cmd-PROGRAM-xxxxxx``) and as
-    ``cmd:COMMAND``; not in the table, so never a default nor part of ``all``. For an
+    ``cmd:COMMAND`` when it has no ``name`` (``cmd:COMMAND`` is always the default-named
+    method, whatever was added before); not in the table, so never a default nor part of ``all``. For an
     experiment's named commands (``[[methods.external]] name = ..., command = ...``).
 
     Raises:
@@ -218,7 +219,9 @@ def add_command(command: str, *, name: str | None = None) -> Method:
     old = _COMMANDS.get(method.name)
     if old is not None and old.defaults["command"] != method.defaults["command"]:
         raise InputError(f"external method name {method.name!r} names two commands")
-    _COMMANDS[method.name] = _COMMANDS["cmd:" + command.strip()] = method
+    _COMMANDS[method.name] = method
+    if name is None:
+        _COMMANDS["cmd:" + command.strip()] = method
     return method
 
 

@@ -314,13 +314,13 @@ def run_command(
         try:
             _, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
+            _kill(proc)
             _, err = proc.communicate()
             raise InputError(
                 _failure(template, f"ran past its timeout of {timeout:g} s", err)
             ) from None
         except BaseException:  # Ctrl-C: do not leave the command running
-            os.killpg(proc.pid, signal.SIGKILL)
+            _kill(proc)
             proc.wait()
             raise
         if proc.returncode != 0:
@@ -333,6 +333,17 @@ def run_command(
         got = f"{img.shape[2]}x{img.shape[1]}"
         raise InputError(_failure(template, f"wrote a {got} output for a {w}x{h} input", err))
     return torch.from_numpy(img)
+
+
+def _kill(proc: subprocess.Popen[str]) -> None:
+    """End the command and its children (its own session, POSIX), or the command alone."""
+    try:
+        if hasattr(os, "killpg"):
+            os.killpg(proc.pid, signal.SIGKILL)
+        else:  # pragma: no cover - Windows has no process groups of this kind
+            proc.kill()
+    except ProcessLookupError:
+        pass
 
 
 def _failure(template: Template, what: str, stderr: str) -> str:

@@ -190,10 +190,12 @@ def test_pfm_round_trip(tmp_path: Path) -> None:
     assert parse_template("x {{a}} {output}").fill({"output": "o.exr"}) == ["x", "{a}", "o.exr"]
 
 
-def test_a_named_command_is_found_by_its_name() -> None:
+def test_a_named_command_is_found_by_its_name(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(registry, "_COMMANDS", dict(registry._COMMANDS))
     text = _cmd("blur {input} {output}").removeprefix("cmd:")
     m = registry.add_command(text, name="mine-blur")
     assert registry.get_method("mine-blur") is m and m.defaults["command"] == text
+    assert registry.get_method("cmd:" + text).name.startswith("cmd-external_denoiser-")
     assert registry.add_command(text, name="mine-blur").name == "mine-blur"  # same again: fine
     with pytest.raises(InputError, match="names two commands"):
         registry.add_command(text + " --x", name="mine-blur")
