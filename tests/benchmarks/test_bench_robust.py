@@ -110,6 +110,8 @@ def test_command_line_table_json_and_comparison(bench, tmp_path, capsys):
     assert "| glass | m1 | 10.0 | **3.12** a | 2.83 | **6.00** a | **8.00** a |" in out
     assert "| (a) | 5 | 2 |" in out and "| total | 9 | 6 |" in out
     assert "  - m2 / glass / 16 spp: needs albedo" in out  # listed, no rule broken
+    # the relMSE change per method and spp (the no-regression target at 16/64 spp)
+    assert "| m1 | 1.000 (1.00 glass) | 0.800 (0.80 glass) | 1.000 (1.00 glass) | " in out
     three = write_results(tmp_path / "three", {k: v for k, v in VALUES.items() if k != "m3"})
     assert bench.main([str(base), str(three)]) == 0
     out = capsys.readouterr().out
@@ -120,6 +122,7 @@ def test_command_line_table_json_and_comparison(bench, tmp_path, capsys):
         {"a": 5, "b": 2, "c": 2},
         {"a": 2, "b": 2, "c": 2},
     ]
+    assert doc["relmse_changes"][0]["by_method"]["m1"]["16"]["geomean"] == pytest.approx(0.3125)
     assert bench.main([str(base), "--json", "-"]) == 0
     assert json.loads(capsys.readouterr().out)["experiments"][0]["total"] == 9
 
@@ -205,6 +208,10 @@ strip_spp = 2
     assert fake.calls == {"fine": 6, "spiky": 6}  # one run per unit, no warm-up
     assert (out / "data" / "manifest.json").read_text() == manifest
     assert (src / "manifest.json").read_text() == manifest
+    # a subset of the ladder
+    argv2 = ["--run", str(spec), "-o", str(tmp_path / "sub"), "--renders", str(tmp_path / "base")]
+    assert bench.main([*argv2, "--spp", "2,4", "--baseline", "fine", "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["experiments"][0]["spp"] == [2, 4]
     # a second run into the same folder would reuse the first run's units: refused
     assert bench.main(argv) == 2
     assert "--resume" in capsys.readouterr().err
