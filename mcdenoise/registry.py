@@ -139,7 +139,7 @@ def _load_plugins(reserved: Collection[str]) -> list[Method]:
             taken = [m.name for m in found if m.name in seen]
             if taken:
                 raise ValueError(f"method name {taken[0]!r} is already taken")
-        except Exception as err:
+        except (Exception, SystemExit) as err:  # a plugin's sys.exit() is its failure too
             reason = " ".join(f"{type(err).__name__}: {err}".split())
             name = ep.name if ep.name not in seen else f"plugin:{ep.name}"
             seen.add(name)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +62,7 @@ def test_plugins_join_the_table_and_broken_ones_say_why(plugins) -> None:
         _EntryPoint("many", "plug:methods", lambda: [triple]),
         _EntryPoint("gone", "missing_pkg:M", error=ModuleNotFoundError("No module named 'x'")),
         _EntryPoint("wrong", "plug:NOT_A_METHOD", 42),
+        _EntryPoint("exits", "plug:EXITS", error=SystemExit(2)),
         _EntryPoint("nlm", "plug:MY_NLM", DOUBLE.__class__(**{**DOUBLE.__dict__, "name": "nlm"})),
     )
     names = {m.name for m in registry.methods()}
@@ -74,6 +74,7 @@ def test_plugins_join_the_table_and_broken_ones_say_why(plugins) -> None:
     assert "gave int, not mcdenoise.method.Method" in str(
         registry.get_method("wrong").unavailable()
     )
+    assert "SystemExit: 2" in str(registry.get_method("exits").unavailable())
     assert "'nlm' is already taken" in str(registry.get_method("plugin:nlm").unavailable())
     fb = FeatureBuffers({"color": torch.ones(3, 2, 2)})
     from mcdenoise.denoise import denoise
@@ -97,43 +98,21 @@ def test_a_plugin_list_that_fails_is_one_unavailable_entry(plugins, monkeypatch)
     assert registry.get_method("nlm").unavailable() is None
 
 
-PLUGIN = '''
-"""An example plugin: a per-frame and a temporal method."""
-import torch
-from mcdenoise.method import Method
-
-
-def _box(b, params, device):
-    c = b["color"][None]
-    k = int(params["radius"]) * 2 + 1
-    return torch.nn.functional.avg_pool2d(
-        torch.nn.functional.pad(c, [k // 2] * 4, mode="replicate"), k, stride=1
-    )[0]
-
-
-def _ema(frames, params, device):
-    history = None
-    for b in frames:
-        c = b["color"]
-        history = c if history is None else params["alpha"] * c + (1 - params["alpha"]) * history
-        yield history
-
-
-def methods():
-    return [
-        Method("plug-box", "box filter", ("color",), (), {"radius": 1}, _box),
-        Method("plug-ema", "moving average", ("color",), (), {"alpha": 0.5}, None,
-               temporal=True, run_sequence=_ema),
-    ]
-'''
+def _documented_plugin() -> str:
+    """The example package's code as docs/methods.md ("Bring your own denoiser") shows it: the
+    test runs the documented example itself."""
+    text = (REPO / "docs" / "methods.md").read_text(encoding="utf-8")
+    start = text.index("```python\n# myplug/__init__.py\n") + len("```python\n")
+    return text[start : text.index("```", start)]
 
 
 def test_an_installed_package_appears_in_every_command(tmp_path: Path) -> None:
-    """A real distribution (``.dist-info`` with ``entry_points.txt``) on the path, found by
-    ``importlib.metadata`` in a fresh interpreter: listed, and denoising through the CLI."""
+    """The documented example package as a real distribution (``.dist-info`` with
+    ``entry_points.txt``) on the path, found by ``importlib.metadata`` in a fresh
+    interpreter: listed, and denoising through the CLI."""
     site = tmp_path / "site"
     (site / "myplug").mkdir(parents=True)
-    (site / "myplug" / "__init__.py").write_text(textwrap.dedent(PLUGIN))
+    (site / "myplug" / "__init__.py").write_text(_documented_plugin())
     info = site / "myplug-0.1.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: myplug\nVersion: 0.1\n")
