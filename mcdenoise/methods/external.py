@@ -26,6 +26,9 @@ folder as its working directory (its scratch files go away with it); so that the
 reads as it would in a shell, the program and any argument naming a file or folder that
 exists relative to the folder mcdenoise was started in are made absolute first.
 
+The command gets mcdenoise's environment plus the thread count it runs with
+(``MCDENOISE_THREADS``, and ``OMP_NUM_THREADS`` unless set): :func:`command_env`.
+
 A failure (a non-zero exit, the timeout, no output, an output without ``R,G,B`` or of
 another size) is one :class:`~mcdenoise.errors.InputError` line ending with the command's
 last stderr lines. The method's time (``mcdenoise:seconds``, the experiment's timings) is
@@ -304,6 +307,7 @@ def run_command(
         proc = subprocess.Popen(
             argv,
             cwd=folder,
+            env=command_env(),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -333,6 +337,18 @@ def run_command(
         got = f"{img.shape[2]}x{img.shape[1]}"
         raise InputError(_failure(template, f"wrote a {got} output for a {w}x{h} input", err))
     return torch.from_numpy(img)
+
+
+def command_env(env: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The command's environment: ours, with the thread count mcdenoise runs with (torch's,
+    what ``--threads`` / an experiment's ``threads`` set) as ``MCDENOISE_THREADS`` and, unless
+    already set, ``OMP_NUM_THREADS``, so a command that honours either uses as many threads
+    as the in-process methods it is compared with."""
+    out = dict(os.environ if env is None else env)
+    threads = str(torch.get_num_threads())
+    out["MCDENOISE_THREADS"] = threads
+    out.setdefault("OMP_NUM_THREADS", threads)
+    return out
 
 
 def _kill(proc: subprocess.Popen[str]) -> None:
@@ -403,6 +419,7 @@ __all__ = [
     "PLACEHOLDERS",
     "PREFIX",
     "Template",
+    "command_env",
     "command_method",
     "method_name",
     "parse_template",

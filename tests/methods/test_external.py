@@ -20,7 +20,13 @@ from mcdenoise.denoise import denoise, parse_methods
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 from mcdenoise.io.exr import read_exr
-from mcdenoise.methods.external import command_method, parse_template, read_pfm, write_pfm
+from mcdenoise.methods.external import (
+    command_env,
+    command_method,
+    parse_template,
+    read_pfm,
+    write_pfm,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "tests" / "data" / "external_denoiser.py"
@@ -237,3 +243,10 @@ def test_an_experiment_judges_a_command(tmp_path: Path, monkeypatch: pytest.Monk
     assert len(done) == 1 and done[0]["failed"] == "false" and float(done[0]["relmse"]) > 0
     assert len(failed) == 1 and failed[0]["failed"] == "true"
     assert "the tensor has the wrong shape" in failed[0]["error"]
+
+
+def test_the_command_learns_the_thread_count(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 3)
+    env = command_env({"PATH": "/bin"})
+    assert env["MCDENOISE_THREADS"] == "3" and env["OMP_NUM_THREADS"] == "3"
+    assert command_env({"OMP_NUM_THREADS": "1"})["OMP_NUM_THREADS"] == "1"  # the user's wins
