@@ -172,7 +172,7 @@ def outputs_present(record: Mapping[str, Any], out: Path) -> bool:
 
 #: How the over-sequences temporal table is formed (results.json and the report state it).
 TEMPORAL_OVERALL = (
-    "per method and spp, over the sequences where it succeeded in every one: relMSE and "
+    "Per method and spp, over the sequences where it succeeded in every one: relMSE and "
     "temporal relMSE (steady and warm-up) as geometric means over sequences, as the still "
     "tables; tPSNR (dB) and tRMAE as arithmetic means, as Noisebase averages them; seconds "
     "per frame as arithmetic means"
