@@ -389,7 +389,9 @@ def command_method(text: str, *, name: str | None = None) -> Method:
 
     def unavailable() -> str | None:
         if _program(template.argv[0]) is None:
-            return f"program {template.argv[0]!r} not found (not on PATH, not a file)"
+            return (
+                f"program {template.argv[0]!r} not found (not on PATH, or not an executable file)"
+            )
         return None
 
     def run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
