@@ -30,24 +30,27 @@ What this module changes:
   it exceeds :data:`MIXING_THRESHOLD` (in a 3×3 neighbourhood), the feature's variance is its
   own neighbourhood estimate, uncapped; elsewhere the cap stays, so an in-focus texture on a
   flat surface (unit normals) is protected as before.
-* **Outliers in mixing pixels** (a lone floor sample in a pixel of sky: farther from the mean
-  of its 8 neighbours than :data:`OUTLIER_SIGMAS` times the estimated noise, which a
-  median-based estimate does not see in heavy-tailed mixing noise) get their squared excess as
-  variance, as :func:`~mcdenoise.prep.inputs.estimate_variance` does for fireflies in the
-  colour; NLM then averages them with their neighbours instead of keeping a patch that matches
-  nothing (the rare-patch effect of NLM, Buades, Coll & Morel 2005).
 * A feature with a variance buffer keeps it (it is the sample variance, no estimate to cap).
 
-The NLM is the same 7×7 window as before: the whole change costs a normal length, a 3×3 max
-and a 3×3 mean per feature. Measured alternatives on tuning renders (the four
+Tried and left out: an outlier rule in mixing pixels (one farther from the mean of its 8
+neighbours than 4 or 8 estimated standard deviations gets its squared excess as variance, as
+:func:`~mcdenoise.prep.inputs.estimate_variance` does for the colour's fireflies, against the
+rare-patch effect of NLM, Buades, Coll & Morel 2005). It helped the defocused tuning renders
+at 4 spp (0.0116 against 0.0120 below) but averaged away the albedo of a few pixels beside a
+bright opening, which the network then multiplied by a large irradiance: the plain
+out-of-distribution ``dark_cellar`` at 4 spp went from 0.80× OIDN's relMSE to 2.40×, all of
+it in 20 pixels.
+
+The NLM is the same 7×7 window as before: the whole change costs a normal length and a 3×3
+max. Measured alternatives on tuning renders (the four
 ``data/samples`` scenes and three renders of the ``dof`` spec, at 4 and 16 spp, plain copies;
 not the out-of-distribution set), ``kpcn`` relMSE geometric mean over 14 images: the capped
-one-scale prefilter 0.0162, this module 0.0116, with an 11×11 window 0.0110 (2.5× the
+one-scale prefilter 0.0162, this module 0.0120, with an 11×11 window 0.0110 (2.5× the
 prefilter's time, which the 4K time bound does not leave); a 3×3-median guide for the patch
 distances 0.0159 (4× better on the defocused horizon, 3× worse on the in-focus checkerboards);
 no cap anywhere 0.0112, but 17-29 % worse than the capped prefilter at 16 spp on the textured
 ``dof`` and ``materials`` samples (the neighbourhood estimate takes texture for noise). Over
-12 of those images (capped 0.0159, this module 0.0108), a 2×2-mean pyramid of NLM levels
+12 of those images (capped 0.0159, this module 0.0113), a 2×2-mean pyramid of NLM levels
 merged where they agree within the noise (intersection of confidence intervals, Katkovnik
 1999) gave 0.0146-0.0152 whatever the gate: the coarse levels blur the partly defocused
 texture the reference keeps. Numbers and commands: ``docs/results/kpcn.md``.
@@ -75,12 +78,6 @@ MIXING_THRESHOLD = 0.05
 #: Radius of the neighbourhood (max) over which the mixing measure is taken: the noisy albedo
 #: of a defocused edge spreads a pixel beyond where the normal shows it.
 MIXING_RADIUS = 1
-#: A mixing pixel farther than this many estimated standard deviations from the mean of its 8
-#: neighbours is an outlier (its squared excess becomes its variance). 4, as for the colour's
-#: fireflies, also took the texture beside silhouettes for outliers at 64 spp (the four
-#: ``make demo`` scenes, plain copies: kpcn / OIDN 0.97 against 0.94 without this module);
-#: 8 keeps the 4-spp gain (1.04 against 1.09) and loses nothing at 64 spp (0.92).
-OUTLIER_SIGMAS = 8.0
 
 
 def mixing_mask(normal: Tensor, threshold: float = MIXING_THRESHOLD) -> Tensor:
@@ -97,27 +94,12 @@ def mixing_mask(normal: Tensor, threshold: float = MIXING_THRESHOLD) -> Tensor:
     return F.max_pool2d(deficit, k, stride=1, padding=MIXING_RADIUS) > threshold
 
 
-def neighbour_excess(feature: Tensor) -> Tensor:
-    """``(B, 1, H, W)`` channel mean of ``(f - m)²``, ``m`` the mean of the 8 neighbours (the
-    in-image ones at the border): how far a pixel stands out of its neighbourhood. A 3×3
-    median would be more robust to two outliers side by side, but on the tuning renders it
-    found no more (``kpcn`` relMSE geometric mean 0.0115 with it, 0.0114 with this) at 12×
-    the time (a 9-tap sort per channel: 2.3 s against 0.18 s for a 1024² albedo, 1 thread).
-    """
-    ones = torch.ones_like(feature[:1, :1])
-    n = F.avg_pool2d(ones, 3, stride=1, padding=1, divisor_override=1)  # in-image pixels
-    total = F.avg_pool2d(feature, 3, stride=1, padding=1, divisor_override=1)
-    others = (total - feature) / (n - 1)
-    return (feature - others).square().mean(dim=1, keepdim=True)
-
-
 def aux_feature_variance(
     feature: Tensor, color: Tensor, color_var: Tensor, mixing: Tensor | None
 ) -> Tensor:
     """Variance ``(B, 1, H, W)`` that steers the prefilter of a feature without a variance
     buffer: the neighbourhood estimate, capped by the colour's noise outside ``mixing``
-    pixels; in them uncapped, and an outlier's squared excess over its neighbours'
-    (:func:`neighbour_excess`).
+    pixels, uncapped in them.
 
     Args:
         feature: ``(B, C, H, W)`` normalised feature.
@@ -129,10 +111,7 @@ def aux_feature_variance(
     capped = torch.minimum(est, feature_noise_cap(color, color_var, feature))
     if mixing is None:
         return capped
-    v = torch.where(mixing, est, capped)
-    excess = neighbour_excess(feature)
-    outlier = mixing & (excess > OUTLIER_SIGMAS**2 * est)
-    return torch.where(outlier, torch.maximum(v, excess), v)
+    return torch.where(mixing, est, capped)
 
 
 def prefilter_aux(
@@ -168,9 +147,7 @@ def prefilter_aux(
 __all__ = [
     "MIXING_RADIUS",
     "MIXING_THRESHOLD",
-    "OUTLIER_SIGMAS",
     "aux_feature_variance",
     "mixing_mask",
-    "neighbour_excess",
     "prefilter_aux",
 ]

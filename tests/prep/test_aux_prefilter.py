@@ -5,14 +5,12 @@ used as it is."""
 
 from __future__ import annotations
 
-import pytest
 import torch
 
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.prep.aux_prefilter import (
     aux_feature_variance,
     mixing_mask,
-    neighbour_excess,
     prefilter_aux,
 )
 from mcdenoise.prep.inputs import PREFILTER_ESTIMATED, prefilter_feature, prepare_inputs
@@ -80,7 +78,7 @@ def test_a_surface_mixed_with_the_background_is_denoised_where_the_colour_shows_
     # without the cap the mixing noise is filtered: less than half the error is left
     assert mse(adaptive, truth) < 0.5 * noisy
     # and the result is unbiased where the floor fraction is known: the mean albedo of each
-    # column stays with the truth (no darkening or brightening by the outlier rule)
+    # column stays with the truth
     cols = (adaptive - truth).mean(dim=(0, 1))
     assert float(cols[4:-4].abs().mean()) < 0.02
 
@@ -121,15 +119,3 @@ def test_without_a_normal_the_cap_holds_everywhere() -> None:
     v = aux_feature_variance(f, inp.color, inp.color_var, None)
     torch.testing.assert_close(out, prefilter_feature(f, v, PREFILTER_ESTIMATED))
     assert mse(out, f) < 1e-4  # the colour allows no noise: (almost) untouched
-
-
-def test_neighbour_excess_is_the_distance_to_the_mean_of_the_other_pixels() -> None:
-    f = torch.zeros(1, 2, 5, 6)
-    f[0, :, 2, 3] = 0.8  # a lone outlier
-    f[0, 0, 0, 0] = 0.3  # one in a corner (3 neighbours), one channel
-    ex = neighbour_excess(f)[0, 0]
-    assert ex.shape == (5, 6)
-    assert float(ex[2, 3]) == pytest.approx(0.64)
-    assert float(ex[2, 2]) == pytest.approx((0.1**2 + 0.1**2) / 2)  # 0.8 / 8 from the outlier
-    assert float(ex[0, 0]) == pytest.approx(0.09 / 2)
-    assert float(ex[1, 1]) == pytest.approx((0.3 / 8) ** 2 / 2)  # the corner, not the outlier
