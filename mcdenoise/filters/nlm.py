@@ -257,7 +257,11 @@ def non_local_means(
         if any(pad):
             t = F.pad(t, pad)  # zero terms outside the valid region
         if trim:  # Σ_p t_p - (max_{p≠0} t_p - τ)⁺
-            t = _box_sums(t, f) - (_ring_max(t, f) - tau_c).clamp_min(0.0)
+            if inplace:
+                ring = _ring_max(t, f, inplace=True).sub_(tau_c).clamp_min_(0.0)
+                t = _box_sums(t, f).sub_(ring)
+            else:
+                t = _box_sums(t, f) - (_ring_max(t, f) - tau_c).clamp_min(0.0)
         else:
             t = _box_sums(t, f)  # (B,1,h,w)
         # Number of valid pairs in each clipped patch (separable), folded into one scale.
@@ -311,20 +315,29 @@ def _box_sums(t: Tensor, f: int) -> Tensor:
     return cs[:, :, n:] - cs[:, :, :-n]
 
 
-def _ring_max(t: Tensor, f: int) -> Tensor:
+def _ring_max(t: Tensor, f: int, inplace: bool = False) -> Tensor:
     """Largest term of each ``(2f+1)²`` window of ``t`` (laid out as for :func:`_box_sums`)
-    except its centre, ``(B, 1, h, w)``: the max of four rectangular pools (the rows above and
-    below the centre, and the centre row's left and right parts)."""
+    except its centre, ``(B, 1, h, w)``: running maxima of shifted views (the rows above and
+    below the centre from one horizontal ``2f+1`` maximum, then the centre row's two sides),
+    about as cheap as the box sums; ``max_pool2d`` was 3x slower on these small maps. With
+    ``inplace`` the running maxima overwrite their own new buffers (no autograd)."""
     n = 2 * f + 1
     h, w = t.shape[-2] - n, t.shape[-1] - n
-    top = F.max_pool2d(t[:, :, 1 : f + h, 1:], (f, n), stride=1)
-    bottom = F.max_pool2d(t[:, :, f + 2 :, 1:], (f, n), stride=1)
-    left = F.max_pool2d(t[:, :, f + 1 : f + 1 + h, 1 : f + w], (1, f), stride=1)
-    right = F.max_pool2d(t[:, :, f + 1 : f + 1 + h, f + 2 :], (1, f), stride=1)
-    return torch.maximum(
-        torch.maximum(top[..., :h, :w], bottom[..., :h, :w]),
-        torch.maximum(left[..., :h, :w], right[..., :h, :w]),
-    )
+
+    def fold(acc: Tensor, other: Tensor) -> Tensor:
+        return torch.maximum(acc, other, out=acc) if inplace else torch.maximum(acc, other)
+
+    row = torch.maximum(t[..., 1 : 1 + w], t[..., 2 : 2 + w])
+    for m in range(3, n + 1):
+        row = fold(row, t[..., m : m + w])  # max over the window's columns
+    rows = [*range(1, f + 1), *range(f + 2, n + 1)]  # the rows above and below the centre
+    out = torch.maximum(row[:, :, rows[0] : rows[0] + h], row[:, :, rows[1] : rows[1] + h])
+    for m in rows[2:]:
+        out = fold(out, row[:, :, m : m + h])
+    mid = t[:, :, f + 1 : f + 1 + h]
+    for m in rows:  # the centre row, centre excluded (the same offsets, along x)
+        out = fold(out, mid[..., m : m + w])
+    return out
 
 
 def _counts(a0: int, a1: int, f: int, v0: int, v1: int, like: Tensor) -> Tensor | None:
