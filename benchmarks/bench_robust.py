@@ -614,7 +614,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--spp",
         type=lambda t: [int(x) for x in t.split(",")],
-        help="with --run: only these levels of the ladder (e.g. 16,64)",
+        help="only these levels of the ladder (e.g. 16,64): run (with --run) and analysed",
     )
     p.add_argument("--repetitions", type=int, default=1, help="with --run: timed runs (default 1)")
     p.add_argument("--warmup", type=int, default=0, help="with --run: untimed runs (default 0)")
@@ -638,8 +638,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 warmup=args.warmup,
             )
             folders.append(args.out)
-        elif args.out or args.renders or args.resume or args.spp:
-            raise InputError("-o, --renders, --resume and --spp go with --run")
+        elif args.out or args.renders or args.resume:
+            raise InputError("-o, --renders and --resume go with --run")
         if not folders:
             raise InputError("give experiment folders, or --run SPEC -o DIR")
         analyses = []
@@ -647,6 +647,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not f.exists():
                 raise InputError(f"{f}: no such folder")
             rows, partial = read_rows(f)
+            if args.spp:  # the same levels in every folder, so that their counts compare
+                rows = [r for r in rows if r["spp"] in args.spp]
             analyses.append(analyse(rows, folder=str(f), baseline=args.baseline, partial=partial))
     except InputError as err:
         print(f"bench_robust: error: {err}", file=sys.stderr)

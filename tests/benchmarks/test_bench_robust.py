@@ -125,6 +125,9 @@ def test_command_line_table_json_and_comparison(bench, tmp_path, capsys):
     assert doc["relmse_changes"][0]["by_method"]["m1"]["16"]["geomean"] == pytest.approx(0.3125)
     assert bench.main([str(base), "--json", "-"]) == 0
     assert json.loads(capsys.readouterr().out)["experiments"][0]["total"] == 9
+    assert bench.main([str(base), "--spp", "1,2,16", "--json", "-"]) == 0  # m1 at 2, 16; m2 1->2
+    sub = json.loads(capsys.readouterr().out)["experiments"][0]
+    assert sub["spp"] == [1, 2, 16] and sub["counts"] == {"a": 2, "b": 1, "c": 0}
 
 
 def test_partial_experiment_is_read_from_the_unit_records(bench, tmp_path):
