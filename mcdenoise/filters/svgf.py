@@ -515,7 +515,9 @@ def _bilateral_tile(
 ) -> tuple[Tensor, Tensor, Tensor | None]:
     """Sums over the window of the pixels of ``tile`` with Falcor's ``computeWeight``
     ``w = k · exp(−|Δl|/φ_l − |Δz|/(φ_z |o|)) · max(0, n·n')^phi_normal``, the centre with
-    weight 1: ``(Σ w, Σ w·linear, Σ w²·squared)`` over the tile.
+    weight 1: ``(Σ w, Σ w·linear[:, 1:], Σ w²·squared)`` over the tile. Channel 0 of
+    ``linear`` must be 1 (the callers prepend it), so that ``Σ w`` comes with the other sums
+    in one multiply-add per tap.
 
     The parts of the exponent that do not depend on the centre (``|Δl|``, ``|Δz|`` and the
     normal term, which are symmetric in the two pixels) are computed once per pair ``±o``
@@ -523,8 +525,8 @@ def _bilateral_tile(
     """
     _, _, h, w = lum.shape
     y0, y1, x0, x1 = tile
-    sum_w = torch.ones_like(lum[..., y0:y1, x0:x1])
-    sum_lin = linear[..., y0:y1, x0:x1].clone()
+    # channel 0 of ``linear`` is 1: Σ w and Σ w·linear in one multiply-add per tap
+    sum_all = linear[..., y0:y1, x0:x1].clone()
     sum_sq = None if squared is None else squared[..., y0:y1, x0:x1].clone()
     depth, normal = g.depth, g.normal
     if neg_inv_phi_z is None:
@@ -562,20 +564,24 @@ def _bilateral_tile(
             ty = _shift(cy, -py.start - (oy if sign < 0 else 0))
             tx = _shift(cx, -px.start - (ox if sign < 0 else 0))
             ny, nx = _shift(cy, sign * oy), _shift(cx, sign * ox)
-            e = dl[..., ty, tx] * (
-                neg_inv_phi_l if isinstance(neg_inv_phi_l, float) else neg_inv_phi_l[..., cy, cx]
-            )
+            # exponent ln + |Δl|·(−1/φ_l) + |Δz|·(−1/φ_z)/|o|, one fused op per term
+            if isinstance(neg_inv_phi_l, float):
+                e = dl[..., ty, tx] * neg_inv_phi_l
+                e.add_(ln if isinstance(ln, float) else ln[..., ty, tx])
+            elif isinstance(ln, float):
+                e = dl[..., ty, tx] * neg_inv_phi_l[..., cy, cx]
+                e.add_(ln)
+            else:
+                e = torch.addcmul(ln[..., ty, tx], dl[..., ty, tx], neg_inv_phi_l[..., cy, cx])
             if dz is not None and neg_inv_phi_z is not None:
                 e.addcmul_(dz[..., ty, tx], neg_inv_phi_z[..., cy, cx], value=inv_len)
-            e.add_(ln if isinstance(ln, float) else ln[..., ty, tx])
             wt = e.exp_()
             oy0, ox0 = cy.start - y0, cx.start - x0
             by, bx = slice(oy0, oy0 + (cy.stop - cy.start)), slice(ox0, ox0 + (cx.stop - cx.start))
-            sum_w[..., by, bx] += wt
-            sum_lin[..., by, bx].addcmul_(wt, linear[..., ny, nx])
+            sum_all[..., by, bx].addcmul_(wt, linear[..., ny, nx])
             if sum_sq is not None and squared is not None:
                 sum_sq[..., by, bx].addcmul_(wt.square_(), squared[..., ny, nx])
-    return sum_w, sum_lin, sum_sq
+    return sum_all[:, :1], sum_all[:, 1:], sum_sq
 
 
 def _variance_blur(var: Tensor) -> Tensor:
@@ -606,13 +612,14 @@ def atrous_level(
     if g.depth_fwidth is not None:
         neg_inv_phi_z = -1.0 / (g.depth_fwidth.clamp_min(1e-8) * step)
     pairs = _half_offsets(2, step, ATROUS_WEIGHTS)
+    ones_illum = torch.cat([torch.ones_like(lum), illumination], 1)
     out_i = torch.empty_like(illumination)
     out_v = torch.empty_like(variance)
 
     def run(tile: Tile) -> None:
         y0, y1, x0, x1 = tile
         sw, si, sv = _bilateral_tile(
-            tile, pairs, lum, neg_inv_phi_l, neg_inv_phi_z, g, s.phi_normal, illumination, variance
+            tile, pairs, lum, neg_inv_phi_l, neg_inv_phi_z, g, s.phi_normal, ones_illum, variance
         )
         assert sv is not None
         hit = g.hit[..., y0:y1, x0:x1]
@@ -657,7 +664,7 @@ def spatial_variance(
         neg_inv_phi_l = -1.0 / (s.phi_color * (blurred + 1e-10).sqrt())
     out_i = illumination.clone()
     out_v = variance.clone()
-    packed = torch.cat([illumination, moments], 1)
+    packed = torch.cat([torch.ones_like(lum), illumination, moments], 1)
     tiles = [t for t in _tiles(h, w) if bool(short[..., t[0] : t[1], t[2] : t[3]].any())]
 
     def run(tile: Tile) -> None:
