@@ -631,6 +631,21 @@ def atrous_level(
     return out_i, out_v
 
 
+def _warmup_regions(short: Tensor, radius: int, bands: bool | None = None) -> list[Tile]:
+    """The regions :func:`spatial_variance` computes: the 64×64 tiles holding a ``short``
+    pixel, or (``bands`` None: when those tiles cover half of them or more; True: always) the
+    full-width row bands holding one. Either gives the same pixels bit for bit: each pixel's
+    arithmetic does not depend on the region around it."""
+    _, _, h, w = short.shape
+    tiles = [t for t in _tiles(h, w) if bool(short[..., t[0] : t[1], t[2] : t[3]].any())]
+    if bands is False:
+        return tiles
+    rows = [t for t in _bands(h, w, radius) if bool(short[..., t[0] : t[1], :].any())]
+    if bands or len(tiles) * 64 * 64 >= sum((y1 - y0) * w for y0, y1, _, _ in rows) // 2:
+        return rows  # fewer, larger operations
+    return tiles
+
+
 def spatial_variance(
     illumination: Tensor,
     moments: Tensor,
@@ -653,7 +668,6 @@ def spatial_variance(
     The luminance φ is Falcor's constant ``phi_color``, or, given ``frame_variance`` (the
     renderer's luminance variance of this frame's illumination, ``(B, 1, H, W)``),
     ``phi_color · sqrt(g3×3(frame_variance))`` as in the à-trous levels (see the module doc)."""
-    _, _, h, w = illumination.shape
     short = (length < s.spatial_history) & g.hit
     if not bool(short.any()):
         return illumination, variance
@@ -669,10 +683,7 @@ def spatial_variance(
     out_i = illumination.clone()
     out_v = variance.clone()
     packed = torch.cat([torch.ones_like(lum), illumination, moments], 1)
-    tiles = [t for t in _tiles(h, w) if bool(short[..., t[0] : t[1], t[2] : t[3]].any())]
-    bands = [t for t in _bands(h, w, s.spatial_radius) if bool(short[..., t[0] : t[1], :].any())]
-    if len(tiles) * 64 * 64 >= sum((y1 - y0) * w for y0, y1, _, _ in bands) // 2:
-        tiles = bands  # fewer, larger operations (the per-pixel arithmetic is the same)
+    tiles = _warmup_regions(short, s.spatial_radius)
 
     def run(tile: Tile) -> None:
         y0, y1, x0, x1 = tile

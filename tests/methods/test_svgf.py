@@ -315,6 +315,35 @@ def test_accumulate_is_falcors_ema() -> None:
     torch.testing.assert_close(var[0, 0, 0], (m[0, 1, 0] - m[0, 0, 0] ** 2).clamp_min(0))
 
 
+def test_warm_up_filter_over_bands_equals_the_tiles_bit_for_bit(monkeypatch) -> None:
+    """spatial_variance computes either the 64x64 tiles holding a short-history pixel or the
+    row bands holding one; both must give identical pixels (float32, the method's dtype)."""
+    h, w = 150, 140  # partial tiles and bands at the borders
+    g = torch.Generator().manual_seed(3)
+    illum = torch.rand(1, 3, h, w, generator=g) * 4.0
+    lum = S.luminance(illum)
+    moments = torch.cat([lum, lum.square() * 1.1], 1)
+    var = torch.rand(1, 1, h, w, generator=g) * 0.1
+    depth = 1.0 + torch.rand(1, 1, h, w, generator=g) * 0.05
+    depth[..., :20, :30] = 0.0
+    normal = torch.randn(1, 3, h, w, generator=g) * 0.2
+    normal[:, 2] += 1.0
+    gd = S.make_guides(depth, normal, illum)
+    length = torch.full((1, 1, h, w), 8.0)
+    length[..., ::9, ::7] = 2.0  # sparse but in every tile: the bands are chosen
+    short = (length < 4.0) & gd.hit
+    assert S._warmup_regions(short, 3) == S._warmup_regions(short, 3, bands=True)
+    s = S.SvgfSettings()
+    fv = torch.rand(1, 1, h, w, generator=g) * 0.05
+    banded = S.spatial_variance(illum, moments, var, length, gd, s, fv)
+    original = S._warmup_regions
+    monkeypatch.setattr(S, "_warmup_regions", lambda m, r: original(m, r, bands=False))
+    tiled = S.spatial_variance(illum, moments, var, length, gd, s, fv)
+    for a, b in zip(banded, tiled):
+        assert torch.equal(a, b)
+    assert not torch.equal(banded[0], illum)  # the filter did run
+
+
 def test_results_do_not_depend_on_the_thread_count() -> None:
     frames = _frames(3, h=40, w=200)
     before = torch.get_num_threads()
