@@ -74,7 +74,11 @@ class NlmSettings:
     :data:`~mcdenoise.methods.nlm.VAR_CAP` (16), since with 1 it darkened the 4 spp samples
     by up to 2.8 % (``docs/results/bias.md``). Feature
     terms (Rousselle 2013) use ``sigma_<feature>²`` as the floor of their normaliser
-    ``max(τ, var, |∇f|²)`` and ``feature_scale`` as ``k_f``.
+    ``max(τ, var, |∇f|²)`` and ``feature_scale`` as ``k_f``. ``patch_trim``: see
+    :func:`~mcdenoise.filters.nlm.non_local_means`; inf (off) here, what ``kalantari-nlm`` was
+    trained with; the ``nlm`` method runs with :data:`~mcdenoise.methods.nlm.PATCH_TRIM`.
+    ``variance_prior`` (0 here; the ``nlm`` method's 3) and ``fireflies``:
+    :mod:`mcdenoise.prep.variance`, :mod:`mcdenoise.prep.fireflies`.
     """
 
     search_radius: int = 10
@@ -96,6 +100,7 @@ class NlmSettings:
     features: tuple[str, ...] = GUIDE_FEATURES
     fireflies: str = "clamp"
     variance_prior: float = 0.0
+    patch_trim: float = float("inf")
 
 
 S = TypeVar("S", XbfSettings, NlmSettings)
