@@ -68,6 +68,7 @@ CSV_HEAD = (
     "denoise_runs",
     "device",
     "threads",
+    "timing_clock",
 )
 #: Columns of results.csv after the metric columns.
 CSV_TAIL = (
@@ -177,6 +178,43 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
+#: Marks a denoise time that is a whole process (an external command), not in-process work.
+PROCESS_MARK = "‡"
+PROCESS_NOTE = (
+    f"{PROCESS_MARK}: an external command's time is the whole process (writing its input "
+    "files, starting the program, its own loading and work, reading its output), not "
+    "comparable on the same footing with the in-process methods' times."
+)
+
+
+def record_clock(r: Mapping[str, Any]) -> str | None:
+    """What a record's denoise seconds measure (``process``, ``in-process``, ``None`` for
+    noisy); records written before the field existed are judged by their method."""
+    if "timing_clock" in r:
+        return r["timing_clock"]
+    from mcdenoise.experiments.timing import timing_clock
+
+    return timing_clock(str(r.get("base_method") or r.get("method")))
+
+
+def _process_mark(r: Mapping[str, Any]) -> str:
+    from mcdenoise.experiments.timing import PROCESS
+
+    return PROCESS_MARK if record_clock(r) == PROCESS else ""
+
+
+def _process_methods(result: ExperimentResult) -> list[str]:
+    """Labels of the methods whose times are whole processes (external commands)."""
+    return sorted({str(r["method"]) for r in result.records if _process_mark(r)})
+
+
+def _process_methods_note(result: ExperimentResult) -> str:
+    return (
+        f"{', '.join(_process_methods(result))}: external command(s), timed as whole "
+        f"processes ({PROCESS_MARK}); " + PROCESS_NOTE.partition(": ")[2]
+    )
+
+
 def csv_columns(result: ExperimentResult) -> list[str]:
     """Header of results.csv."""
     extra = CSV_SEQUENCE if result.is_sequences else ()
@@ -194,7 +232,7 @@ def write_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
         row = [r["scene"], r["method"], r.get("base_method"), r["spp"]]
         row += [r.get("render_seconds"), r.get("denoise_seconds"), r.get("total_seconds")]
         row.append(";".join(_cell(v) for v in timing.get("runs", [])) or None)
-        row += [r.get("device"), r.get("threads")]
+        row += [r.get("device"), r.get("threads"), record_clock(r)]
         row += [(r.get("metrics") or {}).get(m) for m in result.metrics]
         row += [r.get("relmse_vs_noisy"), r.get("limited_by_reference"), r.get("pareto")]
         row += [eq.get("spp"), eq.get("seconds"), eq.get("extrapolated"), eq.get("speedup")]
@@ -294,7 +332,8 @@ def _run_table(result: ExperimentResult) -> str:
             f"{_esc(_threads(result))} (libraries outside torch use their own thread pools); "
             f"{_esc(machine.get('cpu', ''))}, "
             f"{_esc(machine.get('cpu_count', ''))} CPU(s), load average at the end "
-            f"{_esc(machine.get('load_average', 'unknown'))}",
+            f"{_esc(machine.get('load_average', 'unknown'))}"
+            + (f"<br>{_esc(_process_methods_note(result))}" if _process_methods(result) else ""),
         ),
         (
             "Version",
@@ -349,6 +388,7 @@ def _scene_table(result: ExperimentResult, scene: SceneSummary) -> str:
                 dag = "†" if eq.get("extrapolated") else ""
                 eq_text = _sub(f"= {_g(eq.get('spp'))} spp plain, {_g(eq.get('speedup'))}×{dag}")
             times = f"{_sec(r.get('render_seconds'))} + {_sec(r.get('denoise_seconds'))}"
+            times += _process_mark(r)
             cls = "num front" if r.get("pareto") else "num"
             error = _g((r.get("metrics") or {}).get("relmse"))
             cells.append(f'<td class="{cls}">{error}{lim}{_sub(times)}{eq_text}</td>')
@@ -358,7 +398,9 @@ def _scene_table(result: ExperimentResult, scene: SceneSummary) -> str:
         '<p class="small">Each cell: relMSE; render + denoise seconds; for denoisers, the spp '
         "plain rendering needs for the same error and the speed-up (× its time; † "
         "extrapolated). "
-        "Green: on this scene's Pareto front. ≈: within 2× of the reference's noise floor.</p>"
+        "Green: on this scene's Pareto front. ≈: within 2× of the reference's noise floor."
+        + (f" {PROCESS_NOTE}" if any(_process_mark(r) for r in recs) else "")
+        + "</p>"
         + _table(["method", *(f"{s} spp" for s in spps)], rows)
     )
 
@@ -393,7 +435,8 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
         rows.append(
             f'<tr><td>{_esc(r["method"])}</td><td class="num">{r["spp"]}</td>{cells}'
             f'<td class="num">{_g(r.get("render_seconds"))}</td>'
-            f'<td class="num">{_g(r.get("denoise_seconds"))}{_sub(_esc(runs))}</td>'
+            f'<td class="num">{_g(r.get("denoise_seconds"))}{_process_mark(r)}'
+            f"{_sub(_esc(runs))}</td>"
             f"<td>{_esc(r.get('device') or '')}</td></tr>"
         )
     head = [
@@ -405,7 +448,12 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
         "device",
     ]
     summary = f"<summary>All metrics and timings of {_esc(scene.id)}</summary>"
-    return f"<details>{summary}{_table(head, rows)}</details>"
+    note = (
+        f'<p class="small">{PROCESS_NOTE}</p>'
+        if any(_process_mark(r) for r in result.scene_records(scene.id))
+        else ""
+    )
+    return f"<details>{summary}{_table(head, rows)}{note}</details>"
 
 
 def _strip(result: ExperimentResult, scene: SceneSummary, index: int, out: Path) -> str:
@@ -453,7 +501,7 @@ def _strip(result: ExperimentResult, scene: SceneSummary, index: int, out: Path)
         detail = (
             f"FAILED: {r.get('reason')}"
             if r.get("failed")
-            else f"relMSE {_g(e)}, {_sec(r.get('total_seconds'))}"
+            else f"relMSE {_g(e)}, {_sec(r.get('total_seconds'))}{_process_mark(r)}"
         )
         cls = ' class="failed"' if r.get("failed") else ""
         figures.append(

@@ -57,7 +57,7 @@ from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepar
 from mcdenoise.experiments.entries import MethodEntry, plan_methods
 from mcdenoise.experiments.report import write_experiment_report
 from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
-from mcdenoise.experiments.timing import machine_info, time_runs, torch_threads
+from mcdenoise.experiments.timing import machine_info, time_runs, timing_clock, torch_threads
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.models.weights import weights_digest
 
@@ -272,6 +272,9 @@ def _base_record(unit: Unit, settings: RunSettings) -> dict[str, Any]:
         "render_jit_seconds_excluded": level.jit_seconds,
         "denoise_seconds": 0.0,
         "timing": None,
+        # what denoise_seconds measure: "process" (an external command, whole process),
+        # "in-process" (the method's own work), None (noisy)
+        "timing_clock": timing_clock(entry.method),
         "device": None,
         "threads": None,
         "output": None,

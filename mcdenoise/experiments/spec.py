@@ -16,6 +16,11 @@ nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
                                           # runs on the CPU, and the record says so)
     threads = 2                           # torch threads while denoising (default: torch's)
 
+    [[external]]                          # a denoiser program, judged like the built-ins
+    name = "mine"                         # its name in `methods`, [params.mine] and the report
+    command = "python my.py {input} {output}"   # a command template (see below)
+    timeout = 600                         # optional: seconds per frame (default 600)
+
     [scenes]                              # either scene specs to render ...
     specs = ["../scenes/cornell.toml"]    # files or folders of *.toml, relative to this file
     random = 4                            # plus N procedural scenes (default 0), scene k
@@ -83,6 +88,23 @@ metrics averaged past the warm-up, the temporal ones (``trelmse``, ``tpsnr``, ``
 the warm-up frames apart. ``metrics`` may then name temporal metrics and must include
 ``relmse`` and ``trelmse``; its default is every still and temporal metric.
 
+External methods (``[[external]]``, an array of tables at the top level: TOML cannot hold both
+``methods = [...]`` and a ``[[methods.external]]`` table under the same key): each entry is
+registered as a method named ``name`` through :func:`mcdenoise.registry.add_command` before
+``methods`` is checked, so ``name`` goes wherever a method name goes (``methods``,
+``[params.NAME]``, ``[[sweep]] method``, ``[stats] baseline``). ``command`` is a template of
+:mod:`mcdenoise.methods.external` (``{input}``/``{output}``, or OIDN's ``{color}``,
+``{albedo}``, ``{normal}``); a template token naming a file or folder that exists relative to
+the spec's folder is made absolute (``python my.py ...`` beside the spec works from any
+current folder). ``timeout`` becomes the method's ``timeout`` parameter (giving it in
+``[params.NAME]`` too is an error). ``methods = "all"`` takes every registered method *and*
+the spec's externals: a spec that declares a program means it to be judged, while plain
+``cmd:...`` methods elsewhere (the command line) are never part of ``all``. A missing name or
+command, a name given twice, a name that is a built-in method or alias (or ``noisy``), or a
+bad template is refused with one line. An external method's times are the whole process
+(writing its inputs, starting it, its work, reading its output); the report marks them
+(:func:`mcdenoise.experiments.timing.timing_clock`).
+
 Errors are :class:`ExperimentError` naming the file and the key, e.g.
 ``demo.toml: sweep[0].values[1]: method 'cross-bilateral' ...``. Method names and sweep
 parameters are checked against the registry (:mod:`mcdenoise.registry`) when the spec is
@@ -118,6 +140,7 @@ _TOP_KEYS = (
     "warmup",
     "device",
     "threads",
+    "external",
     "scenes",
     "render",
     "params",
@@ -139,6 +162,7 @@ _RENDER_KEYS = (
     "frames",
 )
 _SWEEP_KEYS = ("method", "param", "values", "params")
+_EXTERNAL_KEYS = ("name", "command", "timeout")
 _STATS_KEYS = ("baseline", "bootstrap", "confidence", "seed")
 _REPORT_KEYS = ("strip_spp", "budgets", "outputs", "warmup_frames")
 
@@ -155,6 +179,18 @@ class Sweep:
     param: str
     values: tuple[Any, ...]
     params: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class External:
+    """One ``[[external]]``: the command template ``command`` as the method ``name``."""
+
+    name: str
+    command: str
+    timeout: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "command": self.command, "timeout": self.timeout}
 
 
 @dataclass(frozen=True)
@@ -198,6 +234,7 @@ class ExperimentSpec:
     frames: int | None = None
     animate: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     warmup_frames: int = 2
+    externals: tuple[External, ...] = ()
 
     def strip_level(self, levels: Sequence[int]) -> int:
         """The spp level of the image strips among ``levels``: ``strip_spp`` or the middle."""
@@ -213,6 +250,8 @@ class ExperimentSpec:
             d["render"]["frames"] = self.frames
             d["scenes"]["animate"] = {k: dict(v) for k, v in self.animate.items()}
             d["report"]["warmup_frames"] = self.warmup_frames
+        if self.externals:  # a spec without externals keeps its form
+            d["external"] = [e.to_dict() for e in self.externals]
         return d
 
     def _to_dict(self) -> dict[str, Any]:
@@ -451,6 +490,7 @@ def parse_experiment(
     animate = _animate(ctx, scenes.get("animate", {}), specs, frames)
 
     # methods, parameters, sweeps
+    externals = _externals(ctx, top.get("external", []))
     raw_methods = top.get("methods", "all")
     methods: str | tuple[str, ...]
     if raw_methods == "all":
@@ -473,6 +513,12 @@ def parse_experiment(
         table = dict(_table(ctx, key, values))
         _check_params(ctx, key, mname, table)
         params[mname] = table
+    for ext in externals:
+        if ext.timeout is None:
+            continue
+        if "timeout" in params.get(ext.name, {}):
+            raise ctx.error(f"params.{ext.name}.timeout", "also given by its [[external]] entry")
+        params[ext.name] = {**params.get(ext.name, {}), "timeout": ext.timeout}
     raw_sweeps = top.get("sweep", [])
     if not isinstance(raw_sweeps, Sequence) or isinstance(raw_sweeps, str):
         raise ctx.error("sweep", "must be a list of [[sweep]] tables")
@@ -591,7 +637,72 @@ def parse_experiment(
         frames=frames,
         animate=animate,
         warmup_frames=warmup_frames,
+        externals=externals,
     )
+
+
+def _externals(ctx: _Ctx, value: Any) -> tuple[External, ...]:
+    """``[[external]]`` entries, checked and registered (:func:`mcdenoise.registry.add_command`)
+    under their names, so the rest of the spec can name them."""
+    if isinstance(value, Mapping):
+        value = [value]  # `[external]` (one table) read as one entry
+    if not isinstance(value, Sequence) or isinstance(value, str):
+        raise ctx.error("external", "must be a list of [[external]] tables")
+    from mcdenoise.registry import add_command, aliases, methods
+
+    builtin = {m.name for m in methods()} | set(aliases()) | {NOISY}
+    out: list[External] = []
+    for i, raw in enumerate(value):
+        key = f"external[{i}]"
+        entry = _table(ctx, key, raw, _EXTERNAL_KEYS)
+        for required in ("name", "command"):
+            if required not in entry:
+                raise ctx.error(f"{key}.{required}", "missing")
+        name = _str(ctx, f"{key}.name", entry["name"])
+        if name in builtin:
+            raise ctx.error(f"{key}.name", f"{name!r} is a built-in method; choose another name")
+        if name.startswith("cmd:") or any(c in name for c in "[]"):
+            raise ctx.error(f"{key}.name", f"{name!r}: a name may not start with 'cmd:' or hold []")
+        if any(e.name == name for e in out):
+            raise ctx.error(f"{key}.name", f"{name!r} names two [[external]] entries")
+        command = _spec_relative(ctx, _str(ctx, f"{key}.command", entry["command"]))
+        timeout = entry.get("timeout")
+        if timeout is not None and (
+            isinstance(timeout, bool)
+            or not isinstance(timeout, int | float)
+            or not math.isfinite(timeout)
+            or timeout <= 0
+        ):
+            raise ctx.error(f"{key}.timeout", f"must be seconds > 0, got {timeout!r}")
+        try:
+            add_command(command, name=name)
+        except McdenoiseError as err:
+            raise ctx.error(key, " ".join(str(err).split())) from None
+        out.append(External(name, command, None if timeout is None else float(timeout)))
+    return tuple(out)
+
+
+def _spec_relative(ctx: _Ctx, command: str) -> str:
+    """``command`` with every whole token that names an existing file or folder relative to
+    the spec's folder made absolute (tokens with placeholders or options are left alone), so
+    a script beside the spec runs whatever folder mcdenoise is started in."""
+    import shlex
+
+    if ctx.base is None:
+        return command
+    try:
+        tokens = shlex.split(command)
+    except ValueError:
+        return command  # the template parser names the problem
+    changed = False
+    for i, token in enumerate(tokens):
+        if not token or token.startswith("-") or "{" in token or Path(token).is_absolute():
+            continue
+        p = ctx.base / token
+        if (i > 0 or os.sep in token or "/" in token) and p.exists():
+            tokens[i] = str(p.resolve())
+            changed = True
+    return shlex.join(tokens) if changed else command
 
 
 def _metric_names(ctx: _Ctx, raw: Sequence[str], frames: int | None) -> tuple[str, ...]:

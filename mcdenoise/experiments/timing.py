@@ -9,7 +9,11 @@ number as much as the algorithm does).
 
 The seconds of one run are the method's own wall time as measured by
 :func:`mcdenoise.denoise.denoise` (``DenoiseResult.seconds``: the method only, no file I/O,
-no sanitising, with a CUDA synchronisation around it on a GPU).
+no sanitising, with a CUDA synchronisation around it on a GPU), except for external command
+methods (:mod:`mcdenoise.methods.external`): theirs is the whole process (writing the inputs,
+starting the program, its own loading and work, reading its output), since mcdenoise cannot
+see inside another program. :func:`timing_clock` names which of the two a record's seconds
+are (results.csv/json ``timing``), and the report marks the process times.
 """
 
 from __future__ import annotations
@@ -25,6 +29,31 @@ from typing import Any, TypeVar
 import torch
 
 T = TypeVar("T")
+
+#: ``timing`` of a method timed in this process (the method's own work only).
+IN_PROCESS = "in-process"
+#: ``timing`` of an external command (the whole process, inputs and output files included).
+PROCESS = "process"
+
+
+def timing_clock(method: str) -> str | None:
+    """What a record's denoise seconds measure for the registry method ``method``:
+    :data:`PROCESS` for an external command, :data:`IN_PROCESS` otherwise, ``None`` for
+    ``noisy`` (no denoiser) or a name the registry does not know.
+
+    >>> timing_clock("noisy") is None, timing_clock("nlm")
+    (True, 'in-process')
+    """
+    from mcdenoise.errors import McdenoiseError
+    from mcdenoise.registry import get_method
+
+    if method == "noisy":
+        return None
+    try:
+        m = get_method(method)
+    except McdenoiseError:
+        return None
+    return PROCESS if "command" in m.defaults else IN_PROCESS
 
 
 @dataclass(frozen=True)
