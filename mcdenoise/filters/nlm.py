@@ -152,7 +152,8 @@ def non_local_means(
             patch -- a firefly next to the pixel -- cannot make every patch around it unlike
             every other, nor hide a neighbour whose patch holds it. The pair's own term stays
             whole: it decides whether ``c_j`` may be averaged into ``c_i``, and a firefly must
-            stay refused as a neighbour. The ``nlm`` method uses 2 (``docs/results/filters.md``).
+            stay refused as a neighbour. Measured (and what it costs in energy):
+            ``docs/results/filters.md``.
         tile: output tile of the kernel loop (memory bound); the result does not depend on it
             beyond float rounding of the cumulative sums.
 
