@@ -39,6 +39,25 @@ def _deterministic_torch():
     yield
 
 
+@pytest.fixture(autouse=True)
+def _drjit_pool_restored():
+    """Dr.Jit's thread pool as it was before the test: a test that renders with
+    ``--threads 1`` in this process leaves a 1-thread pool behind, and Mitsuba 3.9.1 hangs
+    in ``Bitmap.write`` (and loading an envmap) with one thread (see
+    ``mcdenoise/render/scenes.py``), which froze a later test of the full run."""
+    import sys
+
+    before = sys.modules["drjit"].thread_count() if "drjit" in sys.modules else None
+    yield
+    dr = sys.modules.get("drjit")
+    if dr is None:
+        return
+    if before is None:  # imported during the test: Dr.Jit's default pool is one per core
+        before = max(2, os.cpu_count() or 2)
+    if dr.thread_count() != before:
+        dr.set_thread_count(before)
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _one_thread_modules(request: pytest.FixtureRequest):
     """Modules that set ``ONE_THREAD = True`` run with one intra-op thread (before their own

@@ -101,6 +101,10 @@ def _mitsuba_scene(mi, spp: int, w: int = 16, h: int = 12, filt: str = "box"):
 @pytest.mark.mitsuba
 def test_real_mitsuba_file_loads_with_auto_profile(tmp_path):
     mi = pytest.importorskip("mitsuba")
+    import drjit as dr
+
+    if dr.thread_count() < 2:  # Mitsuba 3.9.1 hangs in Bitmap.write with a 1-thread pool
+        dr.set_thread_count(2)  # (tests/conftest.py restores the pool after the test)
     mi.set_variant("scalar_rgb")
     scene = _mitsuba_scene(mi, spp=8)
     mi.render(scene, seed=3)
