@@ -73,6 +73,8 @@ RECORDED_SPEED: Mapping[str, tuple[float, float]] = {
     "kalantari-nlm": (0.0622, 11.0),
     "kpcn": (0.0189, 1.48),
     "oidn": (0.121, 0.223),
+    # the first frame of a sequence (spatial à-trous only); 2026-11-26, load average 0.3
+    "svgf": (0.049, 5.19),
 }
 
 _ENV_POLICY = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")

@@ -15,12 +15,12 @@ Modules: :mod:`~mcdenoise.eval.metrics` (relMSE, SMAPE, MSE, PSNR, SSIM, FLIP an
 registry), :mod:`~mcdenoise.eval.temporal` (temporal relMSE, Noisebase's tPSNR and tRMAE,
 per-frame metrics of a sequence), :mod:`~mcdenoise.eval.tonemap` (sRGB, exposure, false colour),
 :mod:`~mcdenoise.eval.preview` (crop choice), :mod:`~mcdenoise.eval.results` (records and
-their JSON form), :mod:`~mcdenoise.eval.evaluate` (files and arrays -> records),
-:mod:`~mcdenoise.eval.sequences` (folders of frames -> records), :mod:`~mcdenoise.eval.report`
-(records -> files).
+their JSON form), :mod:`~mcdenoise.eval.run` (the entry points), :mod:`~mcdenoise.eval.evaluate`
+(files and arrays -> records), :mod:`~mcdenoise.eval.sequences` (folders of frames ->
+records), :mod:`~mcdenoise.eval.report` (records -> files).
 """
 
-from mcdenoise.eval.evaluate import evaluate, evaluate_arrays, match_prefix, run_eval
+from mcdenoise.eval.evaluate import evaluate_arrays, evaluate_files, match_prefix
 from mcdenoise.eval.metrics import (
     METRICS,
     Metric,
@@ -43,6 +43,7 @@ from mcdenoise.eval.results import (
     ScenePreview,
     SequenceDetail,
 )
+from mcdenoise.eval.run import evaluate, run_eval
 from mcdenoise.eval.sequences import (
     evaluate_sequence_arrays,
     evaluate_sequences,
@@ -76,6 +77,7 @@ __all__ = [
     "compute_metrics",
     "evaluate",
     "evaluate_arrays",
+    "evaluate_files",
     "evaluate_sequence_arrays",
     "evaluate_sequences",
     "flip",

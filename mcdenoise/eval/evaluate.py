@@ -50,7 +50,6 @@ from mcdenoise.eval.results import (
     ScenePreview,
 )
 from mcdenoise.eval.temporal import (
-    WARMUP_FRAMES,
     is_temporal,
 )
 from mcdenoise.eval.tonemap import auto_exposure
@@ -498,7 +497,7 @@ class _Planned:
         return None if self.input is None else _key(self.input, self.input_part)
 
 
-def evaluate(
+def evaluate_files(
     reference: PathLike,
     outputs: Sequence[PathLike],
     *,
@@ -507,12 +506,11 @@ def evaluate(
     progress: bool | str = False,
     force: bool = False,
     warn: Callable[[str], None] | None = None,
-    warmup: int = WARMUP_FRAMES,
 ) -> EvalResult:
-    """Evaluate denoised EXR files (and their noisy inputs) against reference EXR(s).
+    """Evaluate denoised EXR files (and their noisy inputs) against reference EXR(s): stills.
 
-    A reference folder of frames (``frame_0000.exr``, ...) is a sequence: the evaluation is
-    :func:`evaluate_sequences` (``warmup`` is used there only).
+    :func:`mcdenoise.eval.run.evaluate` (``mcdenoise.eval.evaluate``) calls this for stills
+    and :func:`mcdenoise.eval.sequences.evaluate_sequences` for a reference folder of frames.
 
     An output whose recorded source (``mcdenoise:source``) records another scene than its
     reference does (see :func:`same_scene`) is refused, naming both; with ``force`` it is
@@ -547,19 +545,6 @@ def evaluate(
             names both files and sizes).
         mcdenoise.errors.ExrError: an EXR cannot be read.
     """
-    from mcdenoise.eval.sequences import evaluate_sequences, sequence_frames
-
-    if sequence_frames(reference) is not None:
-        return evaluate_sequences(
-            reference,
-            outputs,
-            inputs=inputs,
-            metrics=metrics,
-            progress=progress,
-            force=force,
-            warn=warn,
-            warmup=warmup,
-        )
     result = _new_result(metrics)
     refs = _references(reference)
     single = Path(reference).is_file()
@@ -791,38 +776,3 @@ def _method_from_name(stem: str, noisy: _Meta | None, scene: str) -> str:
             if rest:
                 return rest
     return stem
-
-
-# --- sequences ----------------------------------------------------------------------------
-
-
-def run_eval(
-    reference: PathLike,
-    outputs: Sequence[PathLike],
-    out_dir: PathLike,
-    *,
-    inputs: Sequence[PathLike] | None = None,
-    metrics: Sequence[str] | None = None,
-    progress: bool | str = False,
-    force: bool = False,
-    warn: Callable[[str], None] | None = None,
-    warmup: int = WARMUP_FRAMES,
-) -> tuple[EvalResult, dict[str, Path]]:
-    """:func:`evaluate` then :func:`~mcdenoise.eval.report.write_report` into ``out_dir``.
-
-    Returns:
-        The result and the written paths (``json``, ``csv``, ``html``, ``images``).
-    """
-    from mcdenoise.eval.report import write_report
-
-    result = evaluate(
-        reference,
-        outputs,
-        inputs=inputs,
-        metrics=metrics,
-        progress=progress,
-        force=force,
-        warn=warn,
-        warmup=warmup,
-    )
-    return result, write_report(result, out_dir)

@@ -82,7 +82,7 @@ def write_report(result: EvalResult, out_dir: str | os.PathLike[str]) -> dict[st
     """Write ``results.json``, ``results.csv``, ``report.html`` and ``images/*.png``.
 
     Args:
-        result: what :func:`~mcdenoise.eval.evaluate.evaluate` returned.
+        result: what :func:`~mcdenoise.eval.run.evaluate` returned.
         out_dir: folder to write into (created if needed); existing files are replaced
             atomically.
 

@@ -4,7 +4,7 @@ An evaluation is a flat list of :class:`EvalRecord` (one per evaluated image: ea
 output and each noisy input, grouped by ``scene``), not a fixed table, so later experiments
 (error vs spp, equal time) can add records and fields without a new format.
 
-A sequence (a folder of frames, see :func:`mcdenoise.eval.evaluate.evaluate`) is one record per
+A sequence (a folder of frames, see :func:`mcdenoise.eval.run.evaluate`) is one record per
 method too: its ``metrics`` are the headline values of
 :class:`mcdenoise.eval.temporal.SequenceValues` (frames past the warm-up), and its ``sequence``
 (:class:`SequenceDetail`) holds the warm-up values, the values over all frames and one

@@ -1,6 +1,6 @@
 """Evaluate sequences: folders of frames against a reference folder of frames.
 
-:func:`~mcdenoise.eval.evaluate.evaluate` hands over to :func:`evaluate_sequences` when the
+:func:`~mcdenoise.eval.run.evaluate` hands over to :func:`evaluate_sequences` when the
 reference is a folder of ``frame_0000.exr``, ``frame_0001.exr``, ... (the layout of
 ``mcdenoise render --frames``: ``DIR/<id>/ref/``): every output is a folder of frames
 (``mcdenoise denoise SEQ_DIR -o OUT``), matched to the reference frames by name, and evaluated

@@ -188,10 +188,19 @@ TEMPORAL_COLUMNS = (
 )
 
 
+def number(value: Any) -> float | None:
+    """A record value as a float (``"inf"`` strings decoded); ``None`` when missing (as
+    :func:`mcdenoise.experiments.analysis.number`, which imports this module: no cycle)."""
+    from mcdenoise.eval.results import decode_float
+
+    try:
+        return decode_float(value)
+    except (TypeError, ValueError):
+        return None
+
+
 def _value(record: Mapping[str, Any], group: str, metric: str) -> float | None:
     import math
-
-    from mcdenoise.experiments.analysis import number
 
     if record.get("failed"):
         return None
@@ -204,7 +213,6 @@ def temporal_rows(result: Any, scenes: Sequence[str] | None = None) -> list[dict
     :data:`TEMPORAL_OVERALL`; a value is ``None`` unless every sequence has it."""
     import math
 
-    from mcdenoise.experiments.analysis import number
     from mcdenoise.stats import geometric_mean
 
     ids = list(scenes) if scenes is not None else [s.id for s in result.scenes]

@@ -74,7 +74,12 @@ def readme_commands() -> list[str]:
 def is_slow(command: str) -> bool:
     """Renders, trains, the experiments, and what needs a trained run (minutes each)."""
     words = shlex.split(command)
-    return words[1] in ("render", "train") or "--experiment" in words or "runs/" in command
+    return (
+        words[1] in ("render", "train")
+        or "--experiment" in words
+        or "runs/" in command
+        or "seq/" in command  # reads the sequence the README's render line writes
+    )
 
 
 # --- the work folder ----------------------------------------------------------------------
