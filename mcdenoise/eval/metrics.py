@@ -417,22 +417,26 @@ class Metric:
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready description (name, label, definition, ε, colour space, direction)."""
-        return {
-            "label": self.label,
-            "definition": self.definition,
-            "epsilon": self.epsilon,
-            "space": self.space,
-            "higher_is_better": self.higher_is_better,
-            "best": "closest to 0"
-            if self.signed
-            else ("highest" if self.higher_is_better else "lowest"),
-        }
+        return describe_metric(self)
 
     def better(self, a: float, b: float) -> bool:
         """True when value ``a`` is strictly better than ``b`` for this metric."""
         if self.signed:
             return abs(a) < abs(b)
         return a > b if self.higher_is_better else a < b
+
+
+def describe_metric(m: Any) -> dict[str, Any]:
+    """The JSON-ready description of a metric (:class:`Metric`, or a temporal one of
+    :mod:`mcdenoise.eval.temporal`): label, definition, ε, colour space, direction."""
+    return {
+        "label": m.label,
+        "definition": m.definition,
+        "epsilon": m.epsilon,
+        "space": m.space,
+        "higher_is_better": m.higher_is_better,
+        "best": "closest to 0" if m.signed else ("highest" if m.higher_is_better else "lowest"),
+    }
 
 
 #: Registered metrics, in report column order.

@@ -78,6 +78,7 @@ from mcdenoise.eval.metrics import (
     as_image,
     check_same_shape,
     compute_metrics,
+    describe_metric,
     nonfinite_pixels,
     relative_squared_error,
     resolve_metrics,
@@ -204,16 +205,7 @@ class TemporalMetric:
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready description, as :meth:`Metric.describe` plus ``temporal`` and ``source``."""
-        return {
-            "label": self.label,
-            "definition": self.definition,
-            "epsilon": self.epsilon,
-            "space": self.space,
-            "higher_is_better": self.higher_is_better,
-            "best": "highest" if self.higher_is_better else "lowest",
-            "temporal": True,
-            "source": self.source,
-        }
+        return {**describe_metric(self), "temporal": True, "source": self.source}
 
     def better(self, a: float, b: float) -> bool:
         """True when value ``a`` is strictly better than ``b``."""

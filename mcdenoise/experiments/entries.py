@@ -104,3 +104,14 @@ def plan_methods(spec: ExperimentSpec) -> tuple[list[MethodEntry], dict[str, str
 
 
 __all__ = ["MethodEntry", "plan_methods"]
+
+
+def run_device(method: Any, device: Any, notes: list[str], name: str) -> Any:
+    """The device ``method`` (given as ``name`` in the spec) runs on in a unit: ``device``,
+    or the CPU (with a note in ``notes``) when the method does not support it."""
+    if device.type in method.devices:
+        return device
+    import torch
+
+    notes.append(f"{name} does not run on {device.type}: ran on the CPU")
+    return torch.device("cpu")

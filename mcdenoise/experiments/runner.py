@@ -54,7 +54,7 @@ from mcdenoise.eval.metrics import compute_metrics
 from mcdenoise.eval.results import jsonable
 from mcdenoise.experiments.analysis import assemble
 from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepare_data
-from mcdenoise.experiments.entries import MethodEntry, plan_methods
+from mcdenoise.experiments.entries import MethodEntry, plan_methods, run_device
 from mcdenoise.experiments.report import write_experiment_report
 from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
 from mcdenoise.experiments.timing import machine_info, time_runs, timing_clock, torch_threads
@@ -204,12 +204,7 @@ def run_unit(
         from mcdenoise.denoise import denoise, get_method
 
         method = get_method(entry.method)
-        dev = device
-        if dev.type not in method.devices:
-            record["notes"].append(f"{entry.method} does not run on {dev.type}: ran on the CPU")
-            import torch
-
-            dev = torch.device("cpu")
+        dev = run_device(method, device, record["notes"], entry.method)
 
         def once() -> tuple[Any, float, str]:
             r = denoise(buffers, method, params=entry.overrides, device=dev)

@@ -76,15 +76,11 @@ def run_sequence_unit(
         frame_seconds: list[float] = [0.0] * n
     else:
         from mcdenoise.denoise import denoise_sequence, get_method
+        from mcdenoise.experiments.entries import run_device
         from mcdenoise.experiments.timing import time_runs
 
         method = get_method(entry.method)
-        dev = device
-        if dev.type not in method.devices:
-            record["notes"].append(f"{entry.method} does not run on {dev.type}: ran on the CPU")
-            import torch
-
-            dev = torch.device("cpu")
+        dev = run_device(method, device, record["notes"], entry.method)
 
         def once() -> tuple[list[Any], float, str]:
             results = list(denoise_sequence(frames, method, params=entry.overrides, device=dev))
