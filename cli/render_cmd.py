@@ -75,6 +75,14 @@ from mcdenoise_cli.options import threads_option
     "OUT/<id>/ref/frame_0000.exr, ...",
 )
 @click.option(
+    "--halves/--no-halves",
+    default=True,
+    show_default=True,
+    help="Also write per level two independent half-sample buffers color_a/color_b (each "
+    "the mean of spp/2 samples from disjoint sample streams; colour = their mean), with "
+    "their variances, and feature halves with depth of field (docs/rendering.md#halves).",
+)
+@click.option(
     "--samples-out",
     type=click.Path(file_okay=False),
     default=None,
@@ -101,6 +109,7 @@ def render(
     pass_spp,
     compression,
     frames,
+    halves,
     samples_out,
     progress,
 ):
@@ -138,6 +147,7 @@ def render(
         compression=compression,
         progress="auto" if progress is None else ("bar" if progress else "off"),
         frames=frames,
+        halves=halves,
     )
     result = render_dataset(specs, config, random=random_count, samples_out=samples_out)
     i, n = config.shard

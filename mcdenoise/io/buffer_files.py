@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from mcdenoise.errors import ExrError, InputError
-from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.io.buffers import FeatureBuffers, base_feature, halves_problem
 from mcdenoise.io.exr import (
     ExrPart,
     ExrPartData,
@@ -153,6 +153,7 @@ def read_buffers(
     used = sorted(by_part)
     windows = {parts[i].data_window for i in used}
     if len(windows) > 1:
+        _refuse_halves_of_other_sizes(src, cmap, owner, parts)
         raise ExrError(
             f"{src}: buffers would come from parts of different data windows "
             f"({'; '.join(_window_text(parts[i]) for i in used)}); they are never "
@@ -194,7 +195,32 @@ def read_buffers(
         data_window=ref.data_window,
         display_window=ref.display_window,
     )
+    problem = halves_problem(fb)
+    if problem:
+        if strict:
+            raise InputError(f"{src}: {problem}")
+        cmap.problems.append(problem)
     return LoadResult(fb, cmap, parts, used, notes)
+
+
+def _refuse_halves_of_other_sizes(
+    src: str, cmap: ChannelMap, owner: Mapping[str, int], parts: list[ExrPart]
+) -> None:
+    """Halves read from parts of different sizes: refused by name (before the generic
+    different-windows error)."""
+    window: dict[str, ExrPart] = {}
+    for buf, srcs in cmap.sources.items():
+        chans = [c for s in srcs for c in s.file_channels()]
+        if chans:
+            window[buf] = parts[owner[chans[0]]]
+    for buf, p in window.items():
+        if buf.endswith("_a") and buf != base_feature(buf):
+            other = window.get(buf[:-2] + "_b")
+            if other is not None and other.data_window != p.data_window:
+                raise InputError(
+                    f"{src}: {buf} ({_window_text(p)}) and {buf[:-2]}_b ({_window_text(other)}) "
+                    "differ in size: the two halves of an image must have its size"
+                )
 
 
 def _blender_layer_parts(parts: list[ExrPart], part: str | int, src: str) -> list[ExrPart]:

@@ -39,6 +39,14 @@ buffer (same channel count, or 1 channel for a luminance variance), i.e. the sam
 divided by the sample count. A renderer that writes the per-sample variance (pbrt-v4's
 ``Variance``) is converted on load by the profile, which divides by ``spp``.
 
+Half buffers (two independent halves of the samples, Rousselle et al. 2012, Bitterli et al.
+2016): for a name ``f`` of :data:`HALVABLE`, ``f + "_a"`` and ``f + "_b"`` are the means of
+two disjoint halves of the pixel's samples (``spp / 2`` each, from disjoint sample streams), so
+``f == (f_a + f_b) / 2`` where a renderer writes all three; ``f_a + "_var"`` is the variance
+of the mean of that half (``color_a_var``). Halves come in pairs: an image with only one of
+``f_a``/``f_b`` is refused by :func:`check_halves` (which :func:`mcdenoise.io.load_buffers`
+runs), naming the half that is missing.
+
 Missing buffers are simply absent: code that needs one calls :meth:`FeatureBuffers.require`,
 which raises :class:`MissingFeatureError` naming what is missing and what the file has.
 """
@@ -72,8 +80,42 @@ FEATURES: dict[str, int] = {
 #: Suffix of variance buffers: ``color_var`` is the variance of the mean of ``color``.
 VAR_SUFFIX = "_var"
 
+#: Buffers that may come as two independent halves ``<name>_a`` / ``<name>_b`` (see the module
+#: docstring); motion vectors and their masks are geometry, never halved.
+HALVABLE: tuple[str, ...] = (
+    "color",
+    "albedo",
+    "normal",
+    "depth",
+    "position",
+    "diffuse",
+    "specular",
+    "visibility",
+)
+#: Suffixes of the two halves.
+HALF_SUFFIXES: tuple[str, str] = ("_a", "_b")
+#: ``color_a, color_b, albedo_a, ...``: every half buffer name (without variances).
+HALF_NAMES: tuple[str, ...] = tuple(f + h for f in HALVABLE for h in HALF_SUFFIXES)
+
 #: Every buffer name a FeatureBuffers may hold.
-BUFFER_NAMES: tuple[str, ...] = tuple(FEATURES) + tuple(f + VAR_SUFFIX for f in FEATURES)
+BUFFER_NAMES: tuple[str, ...] = (
+    tuple(FEATURES)
+    + tuple(f + VAR_SUFFIX for f in FEATURES)
+    + HALF_NAMES
+    + tuple(f + VAR_SUFFIX for f in HALF_NAMES)
+)
+
+
+def base_feature(name: str) -> str:
+    """The feature a buffer name belongs to: ``color_a_var`` -> ``color``, ``depth`` -> ``depth``.
+
+    >>> base_feature("color_a_var"), base_feature("albedo_b"), base_feature("normal_var")
+    ('color', 'albedo', 'normal')
+    """
+    base = name[: -len(VAR_SUFFIX)] if name.endswith(VAR_SUFFIX) else name
+    if base not in FEATURES and base[-2:] in HALF_SUFFIXES and base[:-2] in HALVABLE:
+        return base[:-2]
+    return base
 
 
 class MissingFeatureError(McdenoiseError, ValueError):
@@ -108,7 +150,7 @@ class MissingFeatureError(McdenoiseError, ValueError):
 
 def expected_channels(name: str) -> int:
     """Channel count of buffer ``name`` (variance buffers may also have 1 channel)."""
-    base = name[: -len(VAR_SUFFIX)] if name.endswith(VAR_SUFFIX) else name
+    base = base_feature(name)
     if base not in FEATURES:
         raise KeyError(f"unknown buffer name {name!r}; known: {', '.join(BUFFER_NAMES)}")
     return FEATURES[base]
@@ -276,6 +318,41 @@ class FeatureBuffers:
         return out
 
 
+def halves_problem(buffers: FeatureBuffers) -> str | None:
+    """What is wrong with the half buffers of ``buffers`` (one line), or ``None``.
+
+    A feature with only one of its halves (``color_a`` without ``color_b``), or a half
+    variance without its half, is a problem; sizes are checked by :class:`FeatureBuffers`
+    itself (every buffer of an image has the image's size).
+    """
+    for f in HALVABLE:
+        a, b = f + HALF_SUFFIXES[0], f + HALF_SUFFIXES[1]
+        if (a in buffers) != (b in buffers):
+            have, lack = (a, b) if a in buffers else (b, a)
+            return (
+                f"{have} without {lack}: half buffers come in pairs (two independent halves "
+                "of the samples); give both or neither"
+            )
+        for h in (a, b):
+            if h + VAR_SUFFIX in buffers and h not in buffers:
+                return f"{h}{VAR_SUFFIX} without {h}"
+    return None
+
+
+def check_halves(buffers: FeatureBuffers) -> None:
+    """Raise :class:`~mcdenoise.errors.InputError` (one line, prefixed with the source) if
+    :func:`halves_problem` finds something."""
+    problem = halves_problem(buffers)
+    if problem:
+        where = f"{buffers.source}: " if buffers.source else ""
+        raise InputError(where + problem)
+
+
+def has_halves(buffers: FeatureBuffers, name: str = "color") -> bool:
+    """``True`` when both halves of ``name`` are present (:func:`check_halves` first)."""
+    return all(name + h in buffers for h in HALF_SUFFIXES)
+
+
 #: Finite values beyond this magnitude are treated like +/-Inf by :func:`sanitize`: no render
 #: produces them (they come from damaged pixel data) and the filters' float32 arithmetic
 #: overflows on them (squares, sums of squares) into NaN/Inf mid-method.
@@ -307,7 +384,7 @@ def sanitize(
     repaired: dict[str, int] = {}
     for name in buffers.names():
         t = buffers.buffers[name]
-        base = name[: -len(VAR_SUFFIX)] if name.endswith(VAR_SUFFIX) else name
+        base = base_feature(name)
         clamp = name.endswith(VAR_SUFFIX) or base in nonneg
         if clamp_negative is not None and name in clamp_negative:
             clamp = clamp_negative[name]

@@ -47,6 +47,9 @@ class RenderConfig:
             ``False``/``"off"`` (see :func:`mcdenoise.progress.progress_bar`).
         frames: ``None`` for still images, else every job is a sequence of this many frames
             (>= 2).
+        halves: also write two independent half-sample buffers per level (``color_a``,
+            ``color_b`` with their variances; feature halves where features are noisy):
+            :mod:`mcdenoise.render.passes`.
     """
 
     out: Path
@@ -61,6 +64,7 @@ class RenderConfig:
     compression: str = "zip"
     progress: Mode = False
     frames: int | None = None
+    halves: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out", Path(self.out))
@@ -78,6 +82,8 @@ class RenderConfig:
                 f"unknown Mitsuba variant {self.variant!r} (use {', '.join(VARIANT_CHOICES)})"
             )
         check_shard(self.shard)
+        if not isinstance(self.halves, bool):
+            raise RenderError(f"halves must be True or False, got {self.halves!r}")
         if self.frames is not None:
             from mcdenoise.render.sequences import check_frames
 
@@ -97,6 +103,8 @@ class RenderConfig:
         }
         if self.frames is not None:
             out["frames"] = self.frames
+        if self.halves:  # absent = no halves (folders rendered before halves existed)
+            out["halves"] = True
         return out
 
 

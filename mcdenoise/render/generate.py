@@ -264,9 +264,10 @@ def _describe_settings(s: Any) -> str:
         return repr(s)
     spp = ",".join(str(v) for v in s.get("spp", []))
     frames = f" --frames {s['frames']}" if s.get("frames") is not None else " (stills)"
+    halves = " --halves" if s.get("halves") else " --no-halves"
     return (
         f"--res {s.get('width')}x{s.get('height')} --spp {spp} --ref-spp {s.get('ref_spp')} "
-        f"pass_spp {s.get('pass_spp')}{frames}"
+        f"pass_spp {s.get('pass_spp')}{frames}{halves}"
     )
 
 

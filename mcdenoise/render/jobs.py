@@ -17,6 +17,11 @@ Progressive spp levels
     :data:`~mcdenoise.render.config.DEFAULT_PASS_SPP` = 128 for every variant: the JIT
     variants hold a whole pass in memory, about ``width * height * pass_spp`` samples; scalar
     memory does not grow with spp, and the same default keeps seeds comparable).
+Halves (``RenderConfig.halves``)
+    Every increment is rendered as two sets of passes, one per half (:func:`half_level_passes`):
+    half A holds ``ceil(L / 2)`` and half B ``floor(L / 2)`` of the ``L`` samples of a level, so
+    at every even level both hold ``L / 2``. Each render call (pass) gets the next noisy seed,
+    whichever half it belongs to, so the two halves are disjoint sample streams.
 Reference
     ``ref_spp`` samples in passes of at most ``pass_spp``, with seeds disjoint from the noisy
     ones: noisy pass ``k`` of an image with seed ``s`` uses sampler seed ``s + 2k``
@@ -142,6 +147,23 @@ def level_passes(levels: Sequence[int], pass_spp: int) -> list[list[int]]:
     for level in check_spp_levels(levels):
         out.append(split_passes(level - prev, pass_spp))
         prev = level
+    return out
+
+
+def half_level_passes(levels: Sequence[int], pass_spp: int) -> list[tuple[list[int], list[int]]]:
+    """For each level, the pass sizes of its increment in half A and in half B.
+
+    Half A holds ``ceil(L/2)`` samples of level ``L``, half B ``floor(L/2)``; an empty list
+    means the half gets no samples in that increment.
+
+    >>> half_level_passes([1, 4, 16, 300], 128)
+    [([1], []), ([1], [2]), ([6], [6]), ([128, 14], [128, 14])]
+    """
+    out, prev_a, prev_b = [], 0, 0
+    for level in check_spp_levels(levels):
+        a, b = (level + 1) // 2, level // 2
+        out.append((split_passes(a - prev_a, pass_spp), split_passes(b - prev_b, pass_spp)))
+        prev_a, prev_b = a, b
     return out
 
 

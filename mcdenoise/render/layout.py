@@ -4,7 +4,9 @@ Output folder layout (``DIR``)::
 
     DIR/<id>.exr          one multi-part EXR per image: part "spp<n>" per level, lowest first;
                           each part a complete canonical FeatureBuffers (color, color_var and
-                          the plan's features with their _var), float32, header attributes
+                          the plan's features with their _var; with halves color_a/color_b,
+                          their _var, and feature halves with a thin lens), float32, header
+                          attributes
                           mcdenoise:spp, mcdenoise:scene, mcdenoise:image, mcdenoise:seed,
                           mcdenoise:render_seconds (cumulative), mcdenoise:effects,
                           mcdenoise:plan, mcdenoise:variant, mitsuba:version
@@ -217,7 +219,14 @@ def prepare_folder(out: Path) -> None:
 # The samples layout (data/samples)
 # --------------------------------------------------------------------------------------------
 #: Buffers the samples layout stores as float32; every other buffer is written as half.
-SAMPLES_FLOAT32: tuple[str, ...] = ("color", "color_var")
+SAMPLES_FLOAT32: tuple[str, ...] = (
+    "color",
+    "color_var",
+    "color_a",
+    "color_b",
+    "color_a_var",
+    "color_b_var",
+)
 #: Buffers of a reference in the samples layout (float32 colour is nearly incompressible: with
 #: the features the shipped folder would not stay small).
 SAMPLES_REFERENCE: tuple[str, ...] = ("color",)

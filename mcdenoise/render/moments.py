@@ -17,6 +17,14 @@ Renders with distinct seeds are independent sample sets: :meth:`Moments.merge` p
 (spp-weighted means of ``m1`` and ``m2``, float64), which is how the spp levels are rendered
 progressively and how a high-spp reference is rendered in bounded-memory passes.
 
+Half buffers (:func:`buffers_from_halves`): the moments of two disjoint sample streams A
+and B (rendered with distinct seeds, :func:`~mcdenoise.render.jobs.half_level_passes`) give
+``color_a``, ``color_b`` (and feature halves) with their variances of the mean; when both
+halves hold the same number of samples the full buffer is written as the mean of the two
+float32 halves, so ``color == (color_a + color_b) / 2`` holds bit for bit in float32 (the
+float64 sum of two float32 values is exact, halving is exact, and one rounding to float32 is
+what float32 ``(a + b) / 2`` does too); its variance comes from the pooled moments.
+
 Channels are looked up in the film by NAME (:func:`film_channels`), never by position.
 Arrays are float64 ``(C, H, W)`` while accumulating; :func:`buffers_from_moments` returns a
 float32 :class:`~mcdenoise.io.buffers.FeatureBuffers` (colour: linear HDR RGB, Rec.709
@@ -34,7 +42,7 @@ import numpy as np
 import torch
 
 from mcdenoise.errors import InputError
-from mcdenoise.io.buffers import VAR_SUFFIX, FeatureBuffers
+from mcdenoise.io.buffers import HALF_SUFFIXES, VAR_SUFFIX, FeatureBuffers
 
 #: Feature buffer -> Mitsuba ``aov`` type that produces it.
 AOV_TYPES: dict[str, str] = {
@@ -185,3 +193,41 @@ def buffers_from_moments(
         buffers[name] = torch.from_numpy(m1.astype(np.float32))
         buffers[name + VAR_SUFFIX] = torch.from_numpy(var.astype(np.float32))
     return FeatureBuffers(buffers, spp=moments.spp, attributes=dict(attributes or {}))
+
+
+def buffers_from_halves(
+    a: Moments | None,
+    b: Moments | None,
+    halve: Sequence[str] = ("color",),
+    attributes: Mapping[str, Any] | None = None,
+) -> FeatureBuffers:
+    """The buffers of the union of the sample sets ``a`` and ``b``, with the halves of the
+    buffers named in ``halve`` when both hold the same number of samples.
+
+    Every half gets its variance of the mean (``color_a_var``, ``albedo_b_var``). Where halves
+    are written,
+    the full buffer is their float32 mean (module docstring) and its variance comes from the
+    pooled moments. ``a`` or ``b`` may be ``None`` (a level of 1 spp): the other alone, no
+    halves.
+    """
+    if a is None or b is None:
+        only = a if b is None else b
+        if only is None:
+            raise InputError("buffers_from_halves needs at least one half")
+        return buffers_from_moments(only, attributes)
+    out = buffers_from_moments(a.merge(b), attributes)
+    if a.spp != b.spp:
+        return out
+    for name in halve:
+        if name not in a.m1:
+            continue
+        ha = a.m1[name].astype(np.float32)
+        hb = b.m1[name].astype(np.float32)
+        mean = (ha.astype(np.float64) + hb.astype(np.float64)) / 2
+        out[name] = torch.from_numpy(mean.astype(np.float32))
+        out[name + HALF_SUFFIXES[0]] = torch.from_numpy(ha)
+        out[name + HALF_SUFFIXES[1]] = torch.from_numpy(hb)
+        for half, m in zip(HALF_SUFFIXES, (a, b)):
+            var = variance_of_mean(m.m1[name], m.m2[name], m.spp)
+            out[name + half + VAR_SUFFIX] = torch.from_numpy(var.astype(np.float32))
+    return out

@@ -14,6 +14,17 @@ Time
     pass of a new size also compiles kernels; that share is recorded as ``jit_seconds``
     (Dr.Jit's kernel history) so "what accuracy costs in time" can leave it out.
 
+Halves (``config.halves``)
+    Every increment is rendered as the passes of half A, then those of half B
+    (:func:`~mcdenoise.render.jobs.half_level_passes`), each pass with the next noisy seed;
+    A and B are pooled separately over the levels and written as ``color_a``/``color_b``
+    (:func:`~mcdenoise.render.moments.buffers_from_halves`) at every even level, the full
+    buffers being their mean. Features are halved where they are noisy: with a thin lens
+    (``dof``) every feature varies over the lens samples of a pixel; without one the features
+    of a pixel differ only across its footprint (edges, texture), and are not halved. (The
+    renderer has no motion blur: motion is only the sequences' per-frame vectors.) A pass
+    record gets ``"half": "a"`` or ``"b"``.
+
 Determinism: the same spec, seed, settings and variant give identical pixel data.
 """
 
@@ -29,6 +40,7 @@ from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.effects import EffectPlan, plan_effects
 from mcdenoise.render.jobs import (
     ImageJob,
+    half_level_passes,
     level_part,
     level_passes,
     noisy_seed,
@@ -37,6 +49,7 @@ from mcdenoise.render.jobs import (
 )
 from mcdenoise.render.moments import (
     Moments,
+    buffers_from_halves,
     buffers_from_moments,
     moment_integrator,
     render_moments,
@@ -100,7 +113,8 @@ def _render_passes(
     features: Sequence[str],
     clock: _JitClock,
     total: Moments | None,
-) -> tuple[Moments, list[dict[str, Any]], float]:
+    half: str | None = None,
+) -> tuple[Moments | None, list[dict[str, Any]], float]:
     records, seconds = [], 0.0
     for n, s in zip(sizes, seeds):
         t0 = time.perf_counter()
@@ -108,13 +122,72 @@ def _render_passes(
         dt = time.perf_counter() - t0
         seconds += dt
         rec: dict[str, Any] = {"seed": s, "spp": n, "seconds": round(dt, 6)}
+        if half is not None:
+            rec["half"] = half
         jit = clock.lap()
         if jit is not None:
             rec["jit_seconds"] = jit
         records.append(rec)
         total = m if total is None else total.merge(m)
-    assert total is not None
     return total, records, seconds
+
+
+def _render_levels(
+    scene: Any,
+    job: ImageJob,
+    config: RenderConfig,
+    plan: EffectPlan,
+    clock: _JitClock,
+    common: Mapping[str, Any],
+) -> tuple[dict[str, FeatureBuffers], list[dict[str, Any]]]:
+    """Every noisy level, progressively (and in halves with ``config.halves``)."""
+    levels: dict[str, FeatureBuffers] = {}
+    level_records: list[dict[str, Any]] = []
+    total: Moments | None = None
+    halves: list[Moments | None] = [None, None]
+    halve = ("color", *plan.features) if plan.thinlens else ("color",)
+    cumulative, k = 0.0, 0
+    if config.halves:
+        increments = half_level_passes(config.spp, config.pass_spp)
+    else:
+        increments = [(sizes, []) for sizes in level_passes(config.spp, config.pass_spp)]
+    for level, (sizes_a, sizes_b) in zip(config.spp, increments):
+        passes: list[dict[str, Any]] = []
+        seconds = 0.0
+        for h, sizes in enumerate((sizes_a, sizes_b) if config.halves else (sizes_a,)):
+            seeds = [noisy_seed(job.seed, k + j) for j in range(len(sizes))]
+            k += len(sizes)
+            previous = halves[h] if config.halves else total
+            tag = "ab"[h] if config.halves else None
+            merged, recs, secs = _render_passes(
+                scene, sizes, seeds, plan.features, clock, previous, tag
+            )
+            if config.halves:
+                halves[h] = merged
+            else:
+                total = merged
+            passes += recs
+            seconds += secs
+        cumulative += seconds
+        part = level_part(level)
+        attrs = {**common, "mcdenoise:render_seconds": round(cumulative, 6)}
+        if config.halves:
+            levels[part] = buffers_from_halves(halves[0], halves[1], halve, attrs)
+        else:
+            assert total is not None
+            levels[part] = buffers_from_moments(total, attrs)
+        level_records.append(
+            {
+                "spp": level,
+                "part": part,
+                "increment_spp": level - sum(r["increment_spp"] for r in level_records),
+                "passes": passes,
+                "increment_seconds": round(seconds, 6),
+                "render_seconds": round(cumulative, 6),
+                **_jit_total(passes),
+            }
+        )
+    return levels, level_records
 
 
 def _jit_total(passes: Sequence[Mapping[str, Any]]) -> dict[str, float]:
@@ -184,32 +257,7 @@ def render_image(
     }
     clock = _JitClock(variant)
     try:
-        levels: dict[str, FeatureBuffers] = {}
-        level_records: list[dict[str, Any]] = []
-        total: Moments | None = None
-        cumulative, k = 0.0, 0
-        for level, sizes in zip(config.spp, level_passes(config.spp, config.pass_spp)):
-            seeds = [noisy_seed(job.seed, k + j) for j in range(len(sizes))]
-            k += len(sizes)
-            total, passes, seconds = _render_passes(
-                scene, sizes, seeds, plan.features, clock, total
-            )
-            cumulative += seconds
-            part = level_part(level)
-            levels[part] = buffers_from_moments(
-                total, {**common, "mcdenoise:render_seconds": round(cumulative, 6)}
-            )
-            level_records.append(
-                {
-                    "spp": level,
-                    "part": part,
-                    "increment_spp": sum(sizes),
-                    "passes": passes,
-                    "increment_seconds": round(seconds, 6),
-                    "render_seconds": round(cumulative, 6),
-                    **_jit_total(passes),
-                }
-            )
+        levels, level_records = _render_levels(scene, job, config, plan, clock, common)
         sizes = split_passes(config.ref_spp, config.pass_spp)
         seeds = [reference_seed(job.seed, j) for j in range(len(sizes))]
         ref_total, passes, ref_seconds = _render_passes(
@@ -217,6 +265,7 @@ def render_image(
         )
     finally:
         clock.close()
+    assert ref_total is not None
     reference = buffers_from_moments(
         ref_total,
         {

@@ -19,6 +19,11 @@ motion_next_    ``motion_next_valid.Y``                     1 where ``motion_nex
  valid                                                      trustworthy
 <buffer>_var    ``<buffer>_var.<same suffixes>``            variance of the mean of <buffer>
 <buffer>_var    ``<buffer>_var.Y`` (1 channel)              luminance variance of the mean
+color_a,        ``color_a.R/G/B``, ``color_b.R/G/B``         the two independent half-sample
+ color_b                                                    colour buffers (``mcdenoise render
+                                                            --halves``); ``color = (a + b) / 2``
+<feature>_a/_b  ``albedo_a.R/G/B``, ``depth_b.Z``, ...      halves of a feature (same suffixes)
+<half>_var      ``color_a_var.R/G/B``, ...                  variance of the mean of that half
 ==============  ==========================================  =====================================
 
 e.g. ``color_var.R/G/B`` or ``color_var.Y``, ``depth_var.Z``, ``normal_var.X/Y/Z``. Header
@@ -33,7 +38,13 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from mcdenoise.errors import InputError
-from mcdenoise.io.buffers import FEATURES, VAR_SUFFIX, expected_channels
+from mcdenoise.io.buffers import (
+    FEATURES,
+    HALF_NAMES,
+    VAR_SUFFIX,
+    base_feature,
+    expected_channels,
+)
 from mcdenoise.io.profiles.base import RGB, Alternatives, BufferSource, Profile
 
 #: Canonical channel suffixes of each feature (``color`` has no layer prefix).
@@ -62,13 +73,13 @@ def canonical_channels(buffer: str, n_channels: int | None = None) -> tuple[str,
 
     >>> canonical_channels("color"), canonical_channels("depth_var")
     (('R', 'G', 'B'), ('depth_var.Z',))
-    >>> canonical_channels("color_var", 1)
-    ('color_var.Y',)
+    >>> canonical_channels("color_var", 1), canonical_channels("color_a")
+    (('color_var.Y',), ('color_a.R', 'color_a.G', 'color_a.B'))
     """
     want = expected_channels(buffer)
     n = want if n_channels is None else n_channels
     is_var = buffer.endswith(VAR_SUFFIX)
-    base = buffer[: -len(VAR_SUFFIX)] if is_var else buffer
+    base = base_feature(buffer)
     if n != want and not (is_var and n == 1):
         raise InputError(f"buffer {buffer!r} cannot have {n} channel(s)")
     if buffer == "color":
@@ -90,7 +101,8 @@ class McdenoiseProfile(Profile):
 
     def propose(self, channels: Sequence[str], attributes: Mapping[str, Any]) -> Alternatives:
         alts: Alternatives = {}
-        for feat, n in FEATURES.items():
+        for feat in (*FEATURES, *HALF_NAMES):
+            n = expected_channels(feat)
             alts[feat] = [BufferSource(canonical_channels(feat))]
             var = feat + VAR_SUFFIX
             alts[var] = [BufferSource(canonical_channels(var))]

@@ -10,15 +10,18 @@ from mcdenoise.io import load_buffers
 
 def test_tungsten_kpcn(tmp_path, rng):
     ch = planes(rng, ["R", "G", "B", "colorA.R", "colorA.G", "colorA.B", "colorVariance.Z"])
+    ch.update(planes(rng, ["colorB.R", "colorB.G", "colorB.B"]))
     for layer, sfx in [("albedo", "RGB"), ("normal", "RGB"), ("diffuse", "RGB"),
                        ("specular", "RGB"), ("depth", "Z"), ("visibility", "Z")]:  # fmt: skip
         ch.update(planes(rng, [f"{layer}.{c}" for c in sfx]))
         ch.update(planes(rng, [f"{layer}A.{c}" for c in sfx]))
+        ch.update(planes(rng, [f"{layer}B.{c}" for c in sfx]))
         ch.update(planes(rng, [f"{layer}Variance.Z"], 0, 0.01))
     fb = load_buffers(write(tmp_path / "t.exr", ch))
     assert fb.profile == "tungsten"
     feats = ["color", "albedo", "normal", "depth", "diffuse", "specular", "visibility"]
-    assert set(fb.names()) == set(feats) | {f + "_var" for f in feats}
+    halves = {f + h for f in feats for h in ("_a", "_b")}  # KPCN's two-buffer halves
+    assert set(fb.names()) == set(feats) | {f + "_var" for f in feats} | halves
     np.testing.assert_array_equal(
         fb["normal"].numpy(), stack(ch, ["normal.R", "normal.G", "normal.B"])
     )
