@@ -88,13 +88,37 @@ class _MetricsOption(click.Option):
     "(default: 2; 16 is Noisebase's setting, 0 averages every frame).",
 )
 @click.option(
+    "--shard",
+    default=None,
+    metavar="I/N",
+    help="With --experiment: run only share I of N of the (scene, spp, method) units (a "
+    "cluster job array spreads one experiment over N machines sharing -o); no report.",
+)
+@click.option(
+    "--merge",
+    is_flag=True,
+    help="With --experiment: run nothing; build the report from every shard's finished "
+    "units (an error names the shards that have not finished).",
+)
+@click.option(
     "--force",
     is_flag=True,
     help="Evaluate outputs whose recorded source shows another scene than the reference "
     "(a warning instead of an error).",
 )
 def eval_cmd(
-    threads, outputs, reference, inputs, out_dir, metrics, experiment, progress, warmup, force
+    threads,
+    outputs,
+    reference,
+    inputs,
+    out_dir,
+    metrics,
+    experiment,
+    progress,
+    warmup,
+    shard,
+    merge,
+    force,
 ):
     """Compare denoised OUTPUTS (files or folders) with a reference; write a report.
 
@@ -113,21 +137,26 @@ def eval_cmd(
 
     \b
     With --experiment SPEC (no OUTPUTS, no --ref): run the experiment and write
-    report.html, results.json and results.csv into -o DIR.
+    report.html, results.json and results.csv into -o DIR. --shard I/N runs share I of N
+    (e.g. I = $SLURM_ARRAY_TASK_ID), --merge then writes the one report.
     """
     from mcdenoise.denoise import check_output_folder
 
     check_output_folder(out_dir, "-o")
     mode = "auto" if progress is None else ("bar" if progress else "off")
     names = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
+    if experiment is None and (shard is not None or merge):
+        raise click.UsageError("--shard and --merge apply to --experiment SPEC")
     if experiment is not None:
+        if shard is not None and merge:
+            raise click.UsageError("--shard runs one share, --merge builds the report: not both")
         if outputs or reference is not None or inputs:
             raise click.UsageError("--experiment takes no OUTPUTS, --ref or --input")
         if force:
             raise click.UsageError("--force applies to --ref, not to --experiment")
         if warmup is not None:
             raise click.UsageError("--warmup applies to --ref sequences, not to --experiment")
-        _experiment(experiment, out_dir, names, mode, threads)
+        _experiment(experiment, out_dir, names, mode, threads, shard=shard, merge=merge)
         return
     if reference is None:
         raise click.UsageError("Missing option '--ref' (or give --experiment SPEC).")
@@ -158,7 +187,9 @@ def eval_cmd(
             click.echo(f"{kind}: {paths[kind]}")
 
 
-def _experiment(spec_path, out_dir, metrics, progress, threads=None):
+def _experiment(spec_path, out_dir, metrics, progress, threads=None, *, shard=None, merge=False):
+    from mcdenoise_cli.parsing import parse_shard
+
     from mcdenoise.experiments import load_experiment, run_experiment
 
     summary = run_experiment(
@@ -166,6 +197,8 @@ def _experiment(spec_path, out_dir, metrics, progress, threads=None):
         out_dir,
         progress=progress,
         metrics=metrics,
+        shard=None if shard is None else parse_shard(shard),
+        merge=merge,
     )
     for line, to_stderr in summary.messages():  # results on stdout, notes on stderr
         click.echo(line, err=to_stderr)

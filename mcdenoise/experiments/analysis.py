@@ -48,6 +48,7 @@ from mcdenoise.experiments.quality import (
     noisy_rises,
     reference_noise_floor,
 )
+from mcdenoise.experiments.shards import hosts_note, timing_hosts
 from mcdenoise.experiments.spec import NOISY, ExperimentSpec
 from mcdenoise.experiments.stats import RatioStats, compare_methods
 from mcdenoise.experiments.tradeoff import (
@@ -583,8 +584,12 @@ def assemble(
                 + "; ".join(reasons[:3])
                 + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
             )
+    hosts = timing_hosts(recs)
+    if (note := hosts_note(hosts)) is not None:
+        notes.append(note)
     files = sorted({p for s in scenes for p in s.files()})
     prov = provenance(data_root=data_folder, files=files)
+    prov["timing_hosts"] = hosts
     if machine_at_start is not None:
         prov["machine_at_start"] = dict(machine_at_start)
     return ExperimentResult(

@@ -147,13 +147,21 @@ def _scene_spec(spec: ExperimentSpec, path: Path) -> Any:
 
 
 def prepare_data(
-    spec: ExperimentSpec, out: str | os.PathLike[str], *, progress: bool = False
+    spec: ExperimentSpec,
+    out: str | os.PathLike[str],
+    *,
+    progress: bool = False,
+    shard: tuple[int, int] = (1, 1),
+    render: bool = True,
 ) -> tuple[Path, list[str], Any]:
     """Render the spec's images that are missing; return ``(folder, image ids, result)``.
 
     With ``[scenes] folder`` nothing is rendered: the ids are every image of that folder's
     manifest and ``result`` is ``None``. Otherwise ``result`` is the
     :class:`~mcdenoise.render.generate.GenerateResult` (what was rendered and skipped).
+    ``shard = (i, n)``: render only the images of ``mcdenoise render --shard i/n`` (the ids
+    are still every image of the spec). ``render=False`` (a merge) renders nothing and
+    returns ``result = None``.
 
     Raises:
         ExperimentError: the render folder holds a data set of other settings.
@@ -178,7 +186,10 @@ def prepare_data(
         seed=spec.seed,
         progress=progress,
         frames=spec.frames,
+        shard=shard,
     )
+    if not render:
+        return folder, [j.id for j in render_jobs(spec)], None
     if folder.is_dir():
         for name, m in shard_manifests(folder).items():
             if m.get("settings") != config.settings():

@@ -69,6 +69,7 @@ CSV_HEAD = (
     "device",
     "threads",
     "timing_clock",
+    "host",
 )
 #: Columns of results.csv after the metric columns.
 CSV_TAIL = (
@@ -232,7 +233,7 @@ def write_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
         row = [r["scene"], r["method"], r.get("base_method"), r["spp"]]
         row += [r.get("render_seconds"), r.get("denoise_seconds"), r.get("total_seconds")]
         row.append(";".join(_cell(v) for v in timing.get("runs", [])) or None)
-        row += [r.get("device"), r.get("threads"), record_clock(r)]
+        row += [r.get("device"), r.get("threads"), record_clock(r), r.get("host")]
         row += [(r.get("metrics") or {}).get(m) for m in result.metrics]
         row += [r.get("relmse_vs_noisy"), r.get("limited_by_reference"), r.get("pareto")]
         row += [eq.get("spp"), eq.get("seconds"), eq.get("extrapolated"), eq.get("speedup")]

@@ -56,13 +56,27 @@ from mcdenoise.experiments.analysis import assemble
 from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepare_data
 from mcdenoise.experiments.entries import MethodEntry, plan_methods, run_device
 from mcdenoise.experiments.report import write_experiment_report
+from mcdenoise.experiments.shards import (
+    host_name,
+    missing_message,
+    shard_units,
+    with_device,
+    write_shard_record,
+)
 from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
-from mcdenoise.experiments.timing import machine_info, time_runs, timing_clock, torch_threads
+from mcdenoise.experiments.timing import (
+    cpu_model,
+    machine_info,
+    time_runs,
+    timing_clock,
+    torch_threads,
+)
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.models.weights import weights_digest
 
 #: Version of the unit records in ``DIR/work``; bump when their fields change meaning.
 UNIT_SCHEMA = "mcdenoise.experiment-unit/1"
+_CPU = cpu_model()
 WORK = "work"
 OUTPUTS = "outputs"
 
@@ -272,6 +286,11 @@ def _base_record(unit: Unit, settings: RunSettings) -> dict[str, Any]:
         "timing_clock": timing_clock(entry.method),
         "device": None,
         "threads": None,
+        # where it ran (shards spread units over machines; the report says when times mix
+        # machines) and the device the run asked for (part of the fingerprint)
+        "host": host_name(),
+        "cpu": _CPU,
+        "run_device": settings.device,
         "output": None,
         "error": None,
         "notes": [],
@@ -337,7 +356,9 @@ class RunSummary:
         reused: keys of the units whose finished records were reused.
         rendered, render_skipped: image ids rendered now / already finished.
         paths: the report's files (``json``, ``csv``, ``html``, ``images``).
-        result: the assembled :class:`~mcdenoise.experiments.analysis.ExperimentResult`.
+        result: the assembled :class:`~mcdenoise.experiments.analysis.ExperimentResult`
+            (``None`` for a shard: it writes no report).
+        shard: ``(i, n)`` of a shard run; ``shard_units`` the size of its share.
     """
 
     ran: list[tuple[str, int, str]] = field(default_factory=list)
@@ -347,6 +368,8 @@ class RunSummary:
     paths: dict[str, Path] = field(default_factory=dict)
     result: Any = None
     name: str = ""
+    shard: tuple[int, int] | None = None
+    shard_units: int = 0
 
     def messages(self) -> list[tuple[str, bool]]:
         """The lines ``mcdenoise eval --experiment`` prints, each with ``True`` for stderr:
@@ -357,6 +380,20 @@ class RunSummary:
             if self.rendered or self.render_skipped
             else ""
         )
+        if self.shard is not None:
+            i, n = self.shard
+            return [
+                (
+                    f"experiment {self.name}, shard {i}/{n}: {self.shard_units} unit(s); "
+                    f"{rendered}ran {len(self.ran)}, reused {len(self.reused)} finished",
+                    False,
+                ),
+                (
+                    "when every shard has finished, build the report with the same command "
+                    "and --merge instead of --shard",
+                    False,
+                ),
+            ]
         lines = [
             (
                 f"experiment {self.name}: {len(result.scenes)} scene(s) x {len(result.spps)} "
@@ -464,12 +501,45 @@ def _output_present(record: Mapping[str, Any], out: Path) -> bool:
     return (p if p.is_absolute() else out / p).is_file()
 
 
+def collect_units(
+    units: Sequence[Unit], out: Path, settings: RunSettings
+) -> dict[tuple[str, int, str], dict[str, Any]]:
+    """The finished record of every unit, running nothing (what ``--merge`` reads).
+
+    A record counts when its fingerprint matches with the device its shard ran with
+    (``run_device``), so a merge on a machine that resolves another device still finds the
+    shards' records; its output file must exist as for a resume.
+
+    Raises:
+        ExperimentError: some unit has no such record (one line: how many, which shards).
+    """
+    records: dict[tuple[str, int, str], dict[str, Any]] = {}
+    missing: list[tuple[str, int, str]] = []
+    for unit in units:
+        rec = read_unit(unit.path(out))
+        ok = rec is not None and _output_present(rec, out)
+        if ok:
+            assert rec is not None
+            expected = fingerprint(unit, with_device(settings, rec.get("run_device")))
+            ok = rec.get("fingerprint") == expected
+        if ok:
+            assert rec is not None
+            records[unit.key] = rec
+        else:
+            missing.append(unit.key)
+    if missing:
+        raise ExperimentError(missing_message(out, missing, len(units)))
+    return records
+
+
 def run_experiment(
     spec: ExperimentSpec,
     out: str | os.PathLike[str],
     *,
     progress: bool | str = False,
     metrics: Sequence[str] | None = None,
+    shard: tuple[int, int] | None = None,
+    merge: bool = False,
 ) -> RunSummary:
     """Run the experiment ``spec`` into the folder ``out`` and write its report there.
 
@@ -481,12 +551,16 @@ def run_experiment(
             scene, level, method, time left), report; a bar on a terminal, plain lines in a
             log (:func:`mcdenoise.progress.progress_bar`).
         metrics: overrides the spec's metrics (must include relmse).
+        shard: ``(i, n)``: render and run only shard ``i`` of ``n``'s share of the units
+            (:mod:`~mcdenoise.experiments.shards`); no report is written (``merge`` does).
+        merge: render and run nothing; build the report from every unit's finished record.
 
     Returns:
         A :class:`RunSummary`.
 
     Raises:
-        ExperimentError, SpecError, RenderError, InputError: bad spec, folder or settings.
+        ExperimentError, SpecError, RenderError, InputError: bad spec, folder or settings;
+            with ``merge``, a unit without a finished record.
     """
     from mcdenoise.denoise import resolve_device
     from mcdenoise.eval.metrics import resolve_metrics
@@ -494,6 +568,8 @@ def run_experiment(
     from mcdenoise.experiments.dataset import folder_frames
     from mcdenoise.progress import progress_bar
 
+    if shard is not None and merge:
+        raise ExperimentError("a shard runs its share; --merge builds the report: not both")
     root = Path(out)
     try:
         root.mkdir(parents=True, exist_ok=True)
@@ -510,14 +586,26 @@ def run_experiment(
         raise ExperimentError("the metrics of sequences must include trelmse (the tables use it)")
     entries, skipped = plan_methods(spec)
     device = resolve_device(spec.device)
-    summary = RunSummary(name=spec.name)
-    folder, ids, rendered = prepare_data(spec, root, progress=progress)
+    summary = RunSummary(name=spec.name, shard=shard)
+    folder, ids, rendered = prepare_data(
+        spec, root, progress=progress, shard=shard or (1, 1), render=not merge
+    )
     if rendered is not None:
         summary.rendered = list(rendered.rendered)
         summary.render_skipped = list(rendered.skipped)
+    # a shard of a rendering spec reads only the images it rendered (the others may not
+    # exist yet); its share is whole scenes
+    index = {image_id: k for k, image_id in enumerate(ids)}
+    by_scene = shard is not None and spec.folder is None
+    load_ids = ids
+    if by_scene and shard is not None:
+        load_ids = [x for x in ids if index[x] % shard[1] == shard[0] - 1]
+    if by_scene and not load_ids:  # more shards than scenes: nothing to do here
+        write_shard_record(root, shard, units=[], started=_now(), finished=True)
+        return summary
     scenes = load_dataset(
         folder,
-        ids,
+        load_ids,
         spec.spp if (spec.folder is None or spec.spp_given) else None,
         sequences=sequences,
     )
@@ -536,10 +624,18 @@ def run_experiment(
     )
     units = plan_units(scenes, entries)
     at_start = machine_info()
-    with torch_threads(spec.threads):
-        records = run_units(
-            units, root, settings, device=device, progress=progress, summary=summary
-        )
+    if shard is not None:
+        mine = shard_units(units, shard, scene_index=index if by_scene else None)
+        _run_shard(mine, root, settings, device, progress, summary, shard, at_start, spec)
+        return summary
+    if merge:
+        records = collect_units(units, root, settings)
+        summary.reused = [u.key for u in units]
+    else:
+        with torch_threads(spec.threads):
+            records = run_units(
+                units, root, settings, device=device, progress=progress, summary=summary
+            )
     with progress_bar(total=2, desc="report", unit="step", progress=progress) as bar:
         bar.set_postfix_str("statistics")
         result = assemble(
@@ -560,3 +656,35 @@ def run_experiment(
         summary.paths = write_experiment_report(result, root)
         bar.update(1)
     return summary
+
+
+def _run_shard(
+    mine: Sequence[Unit],
+    root: Path,
+    settings: RunSettings,
+    device: Any,
+    progress: bool | str,
+    summary: RunSummary,
+    shard: tuple[int, int],
+    machine: Mapping[str, Any],
+    spec: ExperimentSpec,
+) -> None:
+    """Run one shard's units, recording the shard before (started) and after (finished)."""
+    keys = [u.key for u in mine]
+    started = _now()
+    write_shard_record(root, shard, units=keys, started=started, finished=False, machine=machine)
+    with torch_threads(spec.threads):
+        records = run_units(mine, root, settings, device=device, progress=progress, summary=summary)
+    summary.shard_units = len(mine)
+    refused = [k for k in keys if records[k].get("error")]
+    write_shard_record(
+        root,
+        shard,
+        units=keys,
+        started=started,
+        finished=True,
+        ran=summary.ran,
+        reused=summary.reused,
+        refused=refused,
+        machine=machine,
+    )

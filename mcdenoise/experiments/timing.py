@@ -140,7 +140,8 @@ def torch_threads(threads: int | None) -> Iterator[int]:
             torch.set_num_threads(previous)
 
 
-def _cpu_model() -> str:
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), else what ``platform`` knows."""
     with contextlib.suppress(OSError):
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             for line in f:
@@ -152,7 +153,7 @@ def _cpu_model() -> str:
 def machine_info() -> dict[str, Any]:
     """Where the timings were taken: CPU model and count, torch threads, load average, GPU."""
     info: dict[str, Any] = {
-        "cpu": _cpu_model(),
+        "cpu": cpu_model(),
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
         "platform": platform.platform(),
