@@ -97,6 +97,10 @@ VARIANTS: tuple[str, ...] = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
 SUN_DISTANCE_FACTOR = 1e4
 #: Environment lights: Mitsuba takes at most one per scene.
 ENVIRONMENT_LIGHTS = ("constant", "envmap", "sh")
+#: The sensor's near clip plane (Mitsuba's default, set explicitly so the file can record it).
+NEAR_CLIP = 0.01
+#: The sensor's far clip plane unless a light needs a farther one (a distant sun disk).
+FAR_CLIP = 1e4
 
 
 # --------------------------------------------------------------------------------------------
@@ -247,6 +251,57 @@ def camera_to_world(camera: Camera) -> np.ndarray:
     return look_at(camera.origin, camera.target, camera.up)
 
 
+def camera_metadata(
+    camera: Camera, *, far: float = FAR_CLIP, ao_radius: float | None = None
+) -> dict[str, Any]:
+    """What screen-space methods need to rebuild view-space positions, as plain JSON values.
+
+    The ``mcdenoise:camera`` header attribute of a render (JSON) and the ``camera`` of its
+    manifest record (:func:`mcdenoise.io.camera.camera_from_attributes` reads it back). Keys:
+    the spec's camera (``type``, ``origin``, ``target``, ``up``, ``fov``, ``aperture_radius``,
+    ``focus_distance``), ``fov_axis`` (``"x"``: ``fov`` is horizontal), ``to_world`` (the 4×4
+    camera-to-world matrix of :func:`camera_to_world`, rows), ``near`` and ``far`` (the clip
+    planes the sensor got) and, for an AO render, ``ao_radius`` (the ``mcd_ao`` occlusion
+    distance, scene units). The image size is the file's own.
+
+    >>> m = camera_metadata(Camera(origin=(0, 0, 5), target=(0, 0, 0)), ao_radius=0.5)
+    >>> m["fov_axis"], m["near"], m["to_world"][2], m["ao_radius"]
+    ('x', 0.01, [0.0, 0.0, -1.0, 5.0], 0.5)
+    """
+    d: dict[str, Any] = {
+        "type": camera.type,
+        "origin": [float(v) for v in camera.origin],
+        "target": [float(v) for v in camera.target],
+        "up": [float(v) for v in camera.up],
+        "fov": float(camera.fov),
+        "fov_axis": "x",
+        "aperture_radius": camera.aperture_radius,
+        "focus_distance": camera.focus_distance,
+        "to_world": camera_to_world(camera).tolist(),
+        "near": NEAR_CLIP,
+        "far": float(far),
+    }
+    if ao_radius is not None:
+        d["ao_radius"] = float(ao_radius)
+    return d
+
+
+def far_clip(spec: SceneSpec, plan: EffectPlan) -> float:
+    """The sensor's far clip distance for ``spec`` rendered as ``plan``: :data:`FAR_CLIP`, or
+    twice the distance to the far edge of a finite sun's disk when that is farther
+    (:func:`sun_geometry`; AO plans have no lights)."""
+    lights = () if plan.integrator == "mcd_ao" else spec.lights
+    suns = [lt for lt in lights if lt.type == "sun" and lt.params["angular_diameter"] > 0]
+    far = FAR_CLIP
+    if suns:
+        _, radius = scene_bounds(spec)
+        dist = SUN_DISTANCE_FACTOR * radius
+        for lt in suns:
+            alpha = math.radians(lt.params["angular_diameter"]) / 2.0
+            far = max(far, 2.0 * (dist + dist * math.tan(alpha)))
+    return far
+
+
 def _sensor(
     camera: Camera, plan: EffectPlan, width: int, height: int, far: float, where: str
 ) -> dict[str, Any]:
@@ -265,6 +320,7 @@ def _sensor(
         "fov": float(camera.fov),
         "fov_axis": "x",
         "to_world": to_world,
+        "near_clip": NEAR_CLIP,
         "far_clip": float(far),
         "film": {
             "type": "hdrfilm",
@@ -608,12 +664,10 @@ def scene_dict(
         else:
             for part, s in zip(("side", "top", "bottom"), shapes):
                 d[f"obj_{i:03d}_{part}"] = s
-    far = 1e4
     bounds = scene_bounds(spec) if any(lt.type == "sun" for lt in lights) else None
     for i, lt in enumerate(lights):
-        light, need = _light(lt, f"{where}: lights[{i}]", bounds)
-        d[f"light_{i:03d}"] = light
-        far = max(far, 2.0 * need)
+        d[f"light_{i:03d}"], _ = _light(lt, f"{where}: lights[{i}]", bounds)
+    far = far_clip(spec, plan)
     d["sensor"] = _sensor(camera or spec.camera, plan, width, height, far, where)
     d["integrator"] = integrator if integrator is not None else plan.integrator_dict()
     return d
