@@ -55,7 +55,7 @@ measurements behind this order are in ``docs/results/methods-notes.md``.
 from __future__ import annotations
 
 from mcdenoise.method import Method
-from mcdenoise.methods import ao, cross_bilateral, kalantari, kpcn, kpcn_temporal, nlm, oidn, svgf
+from mcdenoise.methods import ao, cross_bilateral, kalantari, kpcn, nlm, oidn, svgf
 
 
 def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
@@ -68,7 +68,6 @@ def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
         (kpcn.METHOD, ()),
         (oidn.METHOD, ()),
         (svgf.METHOD, ()),
-        (kpcn_temporal.METHOD, ()),
         *((m, ()) for m in ao.METHODS),  # AO estimators (issue 25, H5)
     ]
 
