@@ -1,0 +1,92 @@
+"""Screen-space AO against the ray-traced reference: SSIM, relMSE and milliseconds per method.
+
+Reads a render folder of AO scenes (``mcdenoise render <ao specs> -o DIR``), runs ``ssao``,
+``hbao``, ``alchemy`` and ``gtao`` on the lowest spp level's G-buffer (they ignore the
+colour, so the level does not matter) and prints, per image and method, SSIM and relMSE
+against ``DIR/ref/<id>.exr`` and the wall time; the noisy ray-traced levels are listed as the
+peer in the same run. Renders made before the camera was recorded in the header get it from
+the manifest (the spec's camera and ``render.ao_radius``).
+
+    python benchmarks/bench_ao.py DIR [--threads 1] [--repeat 2]
+
+Times are for the image size rendered; ``ms/MP`` scales them to one megapixel (the
+methods are linear in the pixel count).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import torch
+
+from mcdenoise.eval.metrics import relmse, ssim
+from mcdenoise.io import load_buffers
+from mcdenoise.io.camera import CAMERA_ATTR
+from mcdenoise.methods.ao import METHODS
+from mcdenoise.render.scenes import camera_metadata
+from mcdenoise.render.spec import Camera
+
+
+def _camera_from_manifest(record: dict) -> str:
+    cam = record["spec"]["camera"]
+    camera = Camera(
+        type=cam.get("type", "pinhole"),
+        origin=tuple(cam["origin"]),
+        target=tuple(cam["target"]),
+        up=tuple(cam.get("up", (0.0, 1.0, 0.0))),
+        fov=float(cam["fov"]),
+    )
+    radius = record["spec"]["render"]["ao_radius"]
+    return json.dumps(camera_metadata(camera, ao_radius=radius))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("folder", type=Path)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--repeat", type=int, default=2, help="timed runs per method (best kept)")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    manifest = json.loads((args.folder / "manifest.json").read_text())
+    print(
+        f"threads {args.threads}; SSIM and relMSE against the reference; ms best of {args.repeat}"
+    )
+    print(f"{'image':<22} {'method':<10} {'ssim':>6} {'relmse':>8} {'ms':>8} {'ms/MP':>9}")
+    for record in manifest["images"]:
+        if "ao" not in record.get("effects", []):
+            continue
+        image = record["id"]
+        ref = load_buffers(args.folder / record["files"]["reference"])["color"].numpy()
+        for level in record["levels"]:
+            fb = load_buffers(args.folder / record["files"]["noisy"], part=level["part"])
+            x = fb["color"].numpy()
+            ms = 1000.0 * float(level["render_seconds"])
+            mp = fb.width * fb.height / 1e6
+            name = f"mcd_ao {level['spp']} spp"
+            print(
+                f"{image:<22} {name:<10} {ssim(x, ref):6.3f} {relmse(x, ref):8.4f} "
+                f"{ms:8.0f} {ms / mp:9.0f}"
+            )
+        fb = load_buffers(args.folder / record["files"]["noisy"], part=record["levels"][0]["part"])
+        if CAMERA_ATTR not in fb.attributes:
+            fb.attributes[CAMERA_ATTR] = _camera_from_manifest(record)
+        mp = fb.width * fb.height / 1e6
+        for method in METHODS:
+            params = method.resolve_params(None)
+            best = float("inf")
+            for _ in range(max(1, args.repeat)):
+                t0 = time.perf_counter()
+                out = method.run(fb, params, torch.device("cpu"))
+                best = min(best, time.perf_counter() - t0)
+            x = out.numpy()
+            print(
+                f"{image:<22} {method.name:<10} {ssim(x, ref):6.3f} {relmse(x, ref):8.4f} "
+                f"{1000 * best:8.0f} {1000 * best / mp:9.0f}"
+            )
+
+
+if __name__ == "__main__":
+    main()
