@@ -1,0 +1,268 @@
+"""The error of a denoiser's output without a reference, from two independent half buffers.
+
+A render with halves (``mcdenoise render --halves``; :data:`mcdenoise.io.buffers.HALF_NAMES`)
+holds two colour buffers ``A`` and ``B``, each the mean of ``spp/2`` samples from disjoint
+sample streams, so ``A = μ + a`` and ``B = μ + b`` with ``a``, ``b`` independent and of mean 0
+(Monte Carlo is unbiased) and nothing assumed about their distribution (heavy tails, fireflies:
+that is where SURE from the variance buffer fails, ``benchmarks/headroom_kalantari.py``). Run a
+denoiser ``D`` on each half: ``D_A = D(A)``, ``D_B = D(B)``.
+
+The construction
+    Rousselle, Knaus, Zwicker 2012 ("Adaptive rendering with non-local means filtering") and
+    Bitterli et al. 2016 (NFOR, "Nonlinearly weighted first-order regression for denoising
+    Monte Carlo renderings") judge the filtered half ``D_A`` against the other half ``B``:
+    since ``B``'s noise is independent of ``D_A``,
+
+        E[(D_A − B)²] = E[(D_A − μ)²] + Var B          (the cross term has mean 0)
+
+    so ``(D_A − B)² − v_B`` (``v_B``: the unbiased variance of the mean of ``B``,
+    ``color_b_var``) is an unbiased per-pixel estimate of the squared error of ``D_A``
+    (:func:`half_error`), and ``Var B`` is the same for every candidate filter, so it drops out
+    of a comparison (NFOR selects among candidate filters per pixel this way, then averages the
+    two filtered halves). The estimate is unbiased for *any* deterministic ``D``, linear or
+    not, and any noise distribution with a mean; only its spread depends on the tails.
+
+What the user gets, and the estimate of it
+    ``D`` on a half works at half the samples. As in NFOR, the output whose error is estimated
+    exactly is the mean of the two filtered halves ``D̄ = (D_A + D_B) / 2``. With
+    ``β_A = E[D_A] − μ`` (and ``β_B``) the two outputs are independent, so
+    ``E[(D_A − D_B)²] = MSE_A + MSE_B − 2 β_A·β_B`` and
+    ``MSE(D̄) = (MSE_A + MSE_B + 2 β_A·β_B) / 4 = (MSE_A + MSE_B) / 2 − E[(D_A − D_B)²] / 4``.
+    Hence the per-pixel estimate (:func:`cross_error`)
+
+        ê = ½[(D_A − B)² − v_B + (D_B − A)² − v_A] − ¼(D_A − D_B)²
+
+    is unbiased for the squared error of ``D̄`` with no other assumption. The output most users
+    keep is ``D`` on the full buffer, ``D(x)``, ``x = (A + B)/2``. Writing
+    ``MSE = bias² + variance``: ``ê`` estimates ``β² + Var(D_A)/2`` (the bias of a half-sample
+    filter and its variance halved), which is ``MSE(D(x))`` where the filter's bias does not
+    change between ``spp/2`` and ``spp`` and its output variance falls as ``1/spp`` (exact for
+    a linear filter of fixed weights). A filter that adapts to the noise (narrower where there
+    is less) has a lower bias on ``x``, so ``ê`` tends to overestimate its ``D(x)`` error;
+    ``benchmarks/bench_estimate.py`` measures the relation on held-out renders
+    (docs/results/estimate.md).
+
+Relative MSE
+    relMSE divides by ``r² + ε`` with the reference ``r``; without one the output judged (its
+    own mean over the channels' square) stands in for ``r`` (Rousselle et al. 2011 normalise
+    their error estimate by the filtered value the same way), with the ε of the metric
+    (:data:`mcdenoise.losses.RELMSE_EPS`). The image value is the mean over pixels and
+    channels; its uncertainty is the standard error over ``block × block`` blocks (pixels of
+    one block share a filter footprint, blocks barely do), so it reflects heavy tails too.
+    The per-pixel estimate may be negative (it is unbiased, not a square); the image value is
+    clamped at 0.
+
+Inputs without halves cannot be judged: :func:`split_halves` raises naming what is missing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from mcdenoise.errors import InputError
+from mcdenoise.io.buffers import (
+    HALF_NAMES,
+    HALF_SUFFIXES,
+    VAR_SUFFIX,
+    FeatureBuffers,
+    check_halves,
+    has_halves,
+)
+from mcdenoise.losses import RELMSE_EPS
+
+#: Default side of the blocks over which the image value's standard error is taken.
+BLOCK = 16
+
+Denoiser = Callable[[FeatureBuffers], Tensor]
+
+
+def split_halves(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffers]:
+    """The two half-sample inputs of ``buffers``: in each, ``color`` is one half
+    (``color_a`` or ``color_b``), ``color_var`` its variance, each halved feature its half
+    (``albedo_a``...), the other features as they are, and ``spp`` half the count; no half
+    buffers remain in them (so a method that uses halves does not recurse on a half).
+
+    Features that are not halved are shared by both halves. They hold the samples of both
+    halves, so a filter guided by them sees a little of the other half's noise; the renderer
+    halves the features that are noisy (depth of field) for this reason
+    (:mod:`mcdenoise.render.passes`).
+
+    Raises:
+        InputError: no ``color_a``/``color_b`` (or only one of them).
+    """
+    check_halves(buffers)
+    if not has_halves(buffers):
+        where = f"{buffers.source}: " if buffers.source else ""
+        raise InputError(
+            f"{where}no half buffers (color_a, color_b): the error can only be estimated on a "
+            "render with halves (mcdenoise render --halves)"
+        )
+    base = {n: t for n, t in buffers.buffers.items() if n not in _ALL_HALVES}
+    out = []
+    for suffix in HALF_SUFFIXES:
+        half = buffers.to()
+        half.buffers = dict(base)
+        for n in HALF_NAMES:
+            if n.endswith(suffix) and n in buffers:
+                feat = n[: -len(suffix)]
+                half.buffers[feat] = buffers[n]
+                var = buffers.get(n + VAR_SUFFIX)
+                if var is not None:
+                    half.buffers[feat + VAR_SUFFIX] = var
+                elif feat + VAR_SUFFIX in half.buffers:  # no half variance: twice the full one
+                    half.buffers[feat + VAR_SUFFIX] = 2 * half.buffers[feat + VAR_SUFFIX]
+        half.spp = max(1, buffers.spp // 2) if buffers.spp else None
+        out.append(half)
+    return out[0], out[1]
+
+
+_ALL_HALVES = frozenset(HALF_NAMES) | {n + VAR_SUFFIX for n in HALF_NAMES}
+
+
+def half_error(out_a: Tensor, color_b: Tensor, var_b: Tensor | None = None) -> Tensor:
+    """Per-pixel estimate of the squared error of ``out_a`` = D(A) (NFOR's selection term):
+    ``(D_A − B)² − v_B``, unbiased; without ``var_b`` the term common to every candidate
+    filter is left in (``(D_A − B)²``, enough to compare candidates)."""
+    e = (out_a - color_b).square()
+    return e if var_b is None else e - var_b
+
+
+def cross_error(
+    out_a: Tensor,
+    out_b: Tensor,
+    color_a: Tensor,
+    color_b: Tensor,
+    var_a: Tensor | None = None,
+    var_b: Tensor | None = None,
+) -> Tensor:
+    """Per-pixel unbiased estimate of the squared error of ``(out_a + out_b) / 2``:
+    ``½[(D_A − B)² − v_B + (D_B − A)² − v_A] − ¼(D_A − D_B)²`` (module docstring).
+
+    Without the variances the common term ``½(v_A + v_B)`` is left out: the result then
+    ranks candidate filters (its differences are unbiased) but is not an error.
+    All tensors broadcast together, e.g. ``(3, H, W)`` or ``(N, 3, H, W)``.
+    """
+    e = 0.5 * ((out_a - color_b).square() + (out_b - color_a).square())
+    e = e - 0.25 * (out_a - out_b).square()
+    if var_a is not None and var_b is not None:
+        e = e - 0.5 * (var_a + var_b)
+    return e
+
+
+def relative(squared_error: Tensor, judged: Tensor, eps: float = RELMSE_EPS) -> Tensor:
+    """``squared_error / (judged² + ε)``: a squared error in relMSE units, the judged image
+    standing in for the reference (module docstring)."""
+    return squared_error / (judged.square() + eps)
+
+
+def block_means(t: Tensor, block: int = BLOCK) -> Tensor:
+    """Means of ``t`` ``(..., H, W)`` over the channels (all leading dims but the last two
+    are averaged) and ``block × block`` blocks; partial blocks at the right and bottom edges
+    are weighted by their pixel count. Returns ``(nby, nbx)`` means and the pixel counts."""
+    x = t.reshape(-1, *t.shape[-2:]).double().mean(0)[None, None]
+    h, w = x.shape[-2:]
+    ones = torch.ones_like(x)
+    pad = (0, (-w) % block, 0, (-h) % block)
+    sums = F.avg_pool2d(F.pad(x, pad), block, divisor_override=1)[0, 0]
+    counts = F.avg_pool2d(F.pad(ones, pad), block, divisor_override=1)[0, 0]
+    return sums / counts, counts
+
+
+@dataclass
+class ErrorEstimate:
+    """The estimated error of one output.
+
+    Attributes:
+        squared_error: ``(3, H, W)`` per-pixel unbiased estimate of the squared error
+            (may be negative).
+        relmse_map: ``(H, W)`` per-pixel relMSE estimate (channel mean).
+        relmse: image relMSE estimate (mean of ``relmse_map``, clamped at 0).
+        relmse_se: its standard error over blocks.
+        mse: image MSE estimate (clamped at 0).
+        judged: what the estimate is of: ``"halves-mean"`` (``(D(A) + D(B)) / 2``, exact in
+            expectation) or ``"full"`` (``D`` on the full buffer, through the relation in the
+            module docstring).
+    """
+
+    squared_error: Tensor
+    relmse_map: Tensor
+    relmse: float
+    relmse_se: float
+    mse: float
+    judged: str
+
+    def to_dict(self) -> dict[str, float | str]:
+        """The scalars, for JSON records."""
+        return {
+            "relmse_estimated": self.relmse,
+            "relmse_estimated_se": self.relmse_se,
+            "mse_estimated": self.mse,
+            "estimate_of": self.judged,
+        }
+
+
+def estimate_from_outputs(
+    out_a: Tensor,
+    out_b: Tensor,
+    buffers: FeatureBuffers,
+    *,
+    output: Tensor | None = None,
+    block: int = BLOCK,
+    eps: float = RELMSE_EPS,
+) -> ErrorEstimate:
+    """The :class:`ErrorEstimate` of a denoiser whose outputs on the two halves of
+    ``buffers`` are ``out_a`` and ``out_b`` (``(3, H, W)``).
+
+    ``output``: the image the user keeps (``D`` on the full buffer); it normalises relMSE and
+    the estimate is then of it (``judged="full"``); ``None``: of ``(out_a + out_b) / 2``.
+    """
+    check_halves(buffers)
+    if not has_halves(buffers):
+        raise InputError("estimate_from_outputs: the buffers have no color_a/color_b")
+    a, b = buffers["color_a"], buffers["color_b"]
+    va, vb = buffers.get("color_a_var"), buffers.get("color_b_var")
+    if va is None or vb is None:
+        raise InputError("the error estimate needs the halves' variances color_a_var, color_b_var")
+    out_a, out_b = out_a.to(a), out_b.to(a)
+    sq = cross_error(
+        out_a.double(), out_b.double(), a.double(), b.double(), va.double(), vb.double()
+    )
+    judged_img = (out_a + out_b) / 2 if output is None else output.to(a)
+    rel = relative(sq, judged_img.double(), eps).mean(0)
+    means, counts = block_means(rel, block)
+    n = means.numel()
+    mean = float((means * counts).sum() / counts.sum())
+    se = float(means.std(unbiased=True) / n**0.5) if n > 1 else float("nan")
+    return ErrorEstimate(
+        squared_error=sq.float(),
+        relmse_map=rel.float(),
+        relmse=max(mean, 0.0),
+        relmse_se=se,
+        mse=max(float(sq.mean()), 0.0),
+        judged="halves-mean" if output is None else "full",
+    )
+
+
+def estimate_error(
+    denoiser: Denoiser,
+    buffers: FeatureBuffers,
+    *,
+    output: Tensor | None = None,
+    block: int = BLOCK,
+) -> ErrorEstimate:
+    """Run ``denoiser`` (FeatureBuffers -> ``(3, H, W)``) on both halves of ``buffers`` and
+    estimate the error of its output (:func:`estimate_from_outputs`; ``output``: the
+    denoiser's output on the full buffer, when that is what the user keeps).
+
+    Raises:
+        InputError: ``buffers`` has no halves (or only one).
+    """
+    half_a, half_b = split_halves(buffers)
+    return estimate_from_outputs(
+        denoiser(half_a), denoiser(half_b), buffers, output=output, block=block
+    )
