@@ -124,3 +124,18 @@ def test_empty_pixels_and_depth_discontinuities_give_no_nan(name):
     assert torch.isfinite(ao).all()
     assert ((ao >= 0) & (ao <= 1)).all()
     assert ao[:, :3].eq(1.0).all()
+
+
+def test_gtao_converges_to_the_closed_form_with_many_slices_and_steps():
+    # GTAO integrates the same cosine-weighted visibility as mcd_ao: with 12 slices x 12
+    # steps and no blur the corner bins agree within 0.03 (measured 64x64: 0.706/0.886/0.990
+    # against 0.688/0.863/0.993; at 96x96 with 16 x 16: within 0.012). The defaults (4 x 4 and
+    # the blur) are coarser.
+    g, x = planes_gbuffer([((0, 1, 0), 1.0), ((0, 0, 1), 3.0)], pitch=25, height=64, width=64)
+    dist = 3.0 - x[2]
+    floor = g.valid & (x[1] > 0.999) & (dist > 1e-3)
+    ao = ESTIMATORS["gtao"](g, RADIUS, slices=12, steps=12, blur=False)
+    ref = corner_ao(dist, RADIUS)
+    for lo, hi in BINS:
+        sel = floor & (dist >= lo) & (dist < hi)
+        assert abs((ao[sel] - ref[sel]).mean().item()) < 0.03, (lo, hi)
