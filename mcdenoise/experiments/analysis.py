@@ -105,6 +105,14 @@ def bias_of(record: Mapping[str, Any]) -> float | None:
     return v if v is not None and math.isfinite(v) else None
 
 
+def _mean(values: Sequence[float | None]) -> float | None:
+    """Arithmetic mean; ``None`` when any value is unknown (render time of data without
+    manifest) or there is none."""
+    if not values or any(v is None for v in values):
+        return None
+    return float(np.mean([float(v) for v in values if v is not None]))
+
+
 def _num(v: float) -> str:
     return f"{v:.3g}"
 
@@ -180,10 +188,10 @@ class SceneSummary:
             else {
                 "spp": list(c.spp),
                 "relmse": list(c.error),
-                "render_seconds": list(c.seconds),
+                "render_seconds": [v if math.isfinite(v) else None for v in c.seconds],
                 "loglog_slope": c.slope(),
                 "one_over_n_constant": c.one_over_n(),
-                "seconds_per_spp": c.seconds_per_spp,
+                "seconds_per_spp": c.seconds_per_spp if math.isfinite(c.seconds_per_spp) else None,
             },
             "flagged": self.flagged,
             "flag_reason": self.flag_reason,
@@ -357,6 +365,11 @@ class ExperimentResult:
         )
 
     @property
+    def render_time_known(self) -> bool:
+        """Every level of every scene has its render seconds (not data without manifest)."""
+        return all(lv.render_seconds is not None for s in self.scenes for lv in s.levels)
+
+    @property
     def is_sequences(self) -> bool:
         """The scenes are sequences (``[render] frames``)."""
         return any(s.is_sequence for s in self.scenes)
@@ -373,13 +386,23 @@ class ExperimentResult:
         }
 
 
+#: The report's note when the data came without render seconds.
+RENDER_TIME_UNKNOWN = (
+    "render time unknown: the data came without a manifest.json recording how long each "
+    "level took to render (a folder of inputs and references), so total times, Pareto fronts, "
+    "equal-time tables and equal-quality seconds and speed-ups are not computed; errors, the "
+    "equal-quality spp and the denoise times are"
+)
+
+
 def definitions(metrics: Sequence[str]) -> dict[str, str]:
     """How every derived number is defined (results.json and the report state them)."""
     return {
         "render_seconds": (
             "cumulative wall seconds of Mitsuba rendering up to this spp level (progressive "
             "levels: level n contains the samples of the lower levels), JIT kernel compilation "
-            "and scene loading excluded; from the render folder's manifest.json"
+            "and scene loading excluded; from the render folder's manifest.json (null, "
+            "unknown, for data without one)"
         ),
         "denoise_seconds": (
             "median wall seconds of the method over the timed repetitions (warm-up runs "
@@ -461,9 +484,9 @@ def _noise_floor(scene: SceneData) -> tuple[float | None, str | None]:
 
 
 def _floor_of(reference: Path) -> tuple[float | None, str | None]:
-    from mcdenoise.io import load_buffers
+    from mcdenoise.experiments.dataset import read_reference
 
-    buffers = load_buffers(reference)
+    buffers = read_reference(reference)
     if "color_var" not in buffers:
         return None, f"{reference.name} has no color_var: the reference's noise floor is unknown"
     floor = reference_noise_floor(buffers["color"].numpy(), buffers["color_var"].numpy())
@@ -475,7 +498,8 @@ def _noisy_curve(records: Sequence[Mapping[str, Any]]) -> NoisyCurve | None:
     for r in sorted(records, key=lambda r: r["spp"]):
         e = relmse_of(r)
         if r["method"] == NOISY and e is not None and e > 0:
-            pts.append((int(r["spp"]), e, float(r["render_seconds"])))
+            seconds = number(r.get("render_seconds"))  # unknown: NaN, no seconds per spp
+            pts.append((int(r["spp"]), e, math.nan if seconds is None else seconds))
     if not pts:
         return None
     spp, err, sec = zip(*pts)
@@ -527,8 +551,10 @@ def assemble(
             r["limited_by_reference"] = limited_by_reference(e, floor)
             r["equal_quality"] = None
             if r["method"] != NOISY and e is not None and curve is not None:
-                eq = equal_quality(curve, e, number(r.get("total_seconds")))
-                r["equal_quality"] = eq.to_dict()
+                eq = equal_quality(curve, e, number(r.get("total_seconds"))).to_dict()
+                if not math.isfinite(curve.seconds_per_spp):  # render time unknown
+                    eq["seconds"] = eq["speedup"] = None
+                r["equal_quality"] = eq
         points = _points(mine)
         front = pareto_front(points)
         on_front = {(p.method, p.spp) for p in front}
@@ -584,6 +610,8 @@ def assemble(
                 + "; ".join(reasons[:3])
                 + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
             )
+    if any(lv.render_seconds is None for s in scenes for lv in s.levels):
+        notes.append(RENDER_TIME_UNKNOWN)
     hosts = timing_hosts(recs)
     if (note := hosts_note(hosts)) is not None:
         notes.append(note)
@@ -688,10 +716,10 @@ def _overall(
                     spp=spp,
                     scenes=len(ok),
                     complete=complete,
-                    seconds=float(np.mean([number(r["total_seconds"]) for r in ok]))
+                    seconds=_mean([number(r.get("total_seconds")) for r in ok])
                     if complete
                     else None,
-                    render_seconds=float(np.mean([float(r["render_seconds"]) for r in ok]))
+                    render_seconds=_mean([number(r.get("render_seconds")) for r in ok])
                     if complete
                     else None,
                     denoise_seconds=float(np.mean([float(r["denoise_seconds"]) for r in ok]))

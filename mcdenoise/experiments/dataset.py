@@ -19,6 +19,12 @@ the render seconds of a level are *per frame*: the mean over the frames of each 
 render seconds, JIT excluded as above (each frame is a render of its own, so the JIT share of
 every frame is left out). ``[scenes.animate.<name>]`` of the experiment is merged into that
 scene spec's TOML before it is parsed (:func:`render_jobs`).
+
+A ``[scenes] folder`` without ``manifest.json`` (inputs and references from any renderer, or
+OIDN's training layout) is read by :mod:`mcdenoise.experiments.folder_data`; its render
+seconds are unknown (``None``). The in-memory types (:class:`SceneData`, :class:`Level`,
+:class:`Frame`) and the readers of a level and a reference live in
+:mod:`mcdenoise.experiments.scene_data` and are re-exported here.
 """
 
 from __future__ import annotations
@@ -27,71 +33,24 @@ import hashlib
 import json
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mcdenoise.experiments.scene_data import Frame, Level, SceneData, read_level, read_reference
 from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
 
-
-@dataclass(frozen=True)
-class Level:
-    """One spp level of one image.
-
-    Attributes:
-        spp: samples per pixel.
-        part: part name in the noisy file (``spp16``).
-        render_seconds: cumulative render seconds to reach this level, JIT excluded.
-        jit_seconds: cumulative JIT compilation seconds that were left out.
-    """
-
-    spp: int
-    part: str
-    render_seconds: float
-    jit_seconds: float = 0.0
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One frame of a sequence: its noisy file (one part per level) and its reference."""
-
-    noisy: Path
-    reference: Path
-
-
-@dataclass(frozen=True)
-class SceneData:
-    """One rendered image of the data set: files, levels, seed, and a fingerprint of how it
-    was made (spec, seed, render settings, variant), which keys cached results."""
-
-    id: str
-    noisy: Path
-    reference: Path
-    levels: tuple[Level, ...]
-    reference_spp: int | None
-    seed: int | None
-    variant: str | None
-    fingerprint: str
-    record: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
-    #: the frames of a sequence, in order (``()`` for a still image; then ``noisy`` and
-    #: ``reference`` are the sequence's folder and its ``ref`` folder)
-    frames: tuple[Frame, ...] = ()
-
-    @property
-    def is_sequence(self) -> bool:
-        return bool(self.frames)
-
-    def files(self) -> list[Path]:
-        """Every file of the image or sequence (what the data hash covers)."""
-        if not self.frames:
-            return [self.noisy, self.reference]
-        return [p for f in self.frames for p in (f.noisy, f.reference)]
-
-    def level(self, spp: int) -> Level:
-        for lv in self.levels:
-            if lv.spp == spp:
-                return lv
-        raise KeyError(spp)
+__all__ = [
+    "Frame",
+    "Level",
+    "SceneData",
+    "folder_frames",
+    "load_dataset",
+    "prepare_data",
+    "read_level",
+    "read_reference",
+    "render_folder",
+    "render_jobs",
+]
 
 
 def render_folder(spec: ExperimentSpec, out: str | os.PathLike[str]) -> Path:
@@ -169,6 +128,10 @@ def prepare_data(
     """
     folder = render_folder(spec, out)
     if spec.folder is not None:
+        from mcdenoise.experiments.folder_data import has_manifest
+
+        if not has_manifest(folder):  # inputs + references: load_dataset reads them all
+            return folder, [], None
         manifest = _manifest(folder)
         return folder, [str(r["id"]) for r in manifest.get("images", [])], None
     from mcdenoise.render.config import RenderConfig
@@ -244,7 +207,12 @@ def _levels(record: Mapping[str, Any], where: str) -> list[Level]:
 
 
 def folder_frames(folder: str | os.PathLike[str]) -> int | None:
-    """The frame count of a render folder's sequences (``None``: it holds still images)."""
+    """The frame count of a render folder's sequences (``None``: it holds still images, or
+    it is a folder of inputs without manifest)."""
+    from mcdenoise.experiments.folder_data import has_manifest
+
+    if not has_manifest(folder):
+        return None
     frames = (_manifest(Path(folder)).get("settings") or {}).get("frames")
     return None if frames is None else int(frames)
 
@@ -255,16 +223,34 @@ def load_dataset(
     spp: Sequence[int] | None = None,
     *,
     sequences: bool = False,
+    references: str | os.PathLike[str] | None = None,
 ) -> list[SceneData]:
     """Read the images ``ids`` (default: all) of a render folder, restricted to the levels
     ``spp`` (default: all of the folder's levels); with ``sequences``, the folder must hold
     sequences (``--frames``) and each :class:`SceneData` lists its frames.
+
+    A folder without ``manifest.json`` is a folder of inputs and references (or OIDN's
+    training layout), read by :func:`mcdenoise.experiments.folder_data.scan_folder` with
+    ``references`` (default: its ``ref/``); its render seconds are unknown.
 
     Raises:
         ExperimentError: no manifest, an id or level missing, a sequence folder without
             ``sequences`` (or a still folder with it), or a file missing on disk.
     """
     root = Path(folder).resolve()
+    from mcdenoise.experiments.folder_data import has_manifest, scan_folder
+
+    if not has_manifest(root):
+        if sequences:
+            raise ExperimentError(f"{root}: sequences need a folder of `mcdenoise render`")
+        found = scan_folder(root, references=references, spp=spp)
+        if ids:
+            by_id = {s.id: s for s in found}
+            unknown = [x for x in ids if x not in by_id]
+            if unknown:
+                raise ExperimentError(f"{root}: image {unknown[0]!r} is not in this folder")
+            found = [by_id[x] for x in ids]
+        return found
     manifest = _manifest(root)
     settings = manifest.get("settings") or {}
     if settings.get("frames") is not None and not sequences:

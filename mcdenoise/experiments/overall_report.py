@@ -10,7 +10,15 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mcdenoise.experiments.analysis import ExperimentResult, OverallView, number, relmse_of
+from mcdenoise.experiments.analysis import (
+    RENDER_TIME_UNKNOWN as UNKNOWN_TIME,
+)
+from mcdenoise.experiments.analysis import (
+    ExperimentResult,
+    OverallView,
+    number,
+    relmse_of,
+)
 from mcdenoise.experiments.htmlkit import LIM_MARK as _LIM_MARK
 from mcdenoise.experiments.htmlkit import esc as _esc
 from mcdenoise.experiments.htmlkit import g as _g
@@ -74,6 +82,8 @@ def _overall_plots(
         floor=floor,
         title=f"Error vs samples per pixel ({where})",
     )
+    if not result.render_time_known:  # no time axis: the error-vs-spp plot alone
+        return names[:1]
     plot_error_vs_time(
         out / "images" / names[1],
         plot_series(result, fake, "total_seconds"),
@@ -139,14 +149,18 @@ def overall_sections(result: ExperimentResult, out: Path, reason: str | None) ->
         )
     parts.append(f'<h2 id="equal-time">Equal time: the best choice for a time budget</h2>{switch}')
     budgets = "as given by the spec" if result.spec.budgets else "log-spaced over the times"
-    parts.append(
-        scoped(
-            lambda t, v: (
-                f'<p class="small">Over {len(v.scenes)} scene(s) (mean total seconds, '
-                f"geometric mean relMSE). Budgets: {budgets}.</p>" + equal_time_table(v.equal_time)
+    if not result.render_time_known:
+        parts.append(f'<p class="notes">Not computed: {_esc(UNKNOWN_TIME)}</p>')
+    else:
+        parts.append(
+            scoped(
+                lambda t, v: (
+                    f'<p class="small">Over {len(v.scenes)} scene(s) (mean total seconds, '
+                    f"geometric mean relMSE). Budgets: {budgets}.</p>"
+                    + equal_time_table(v.equal_time)
+                )
             )
         )
-    )
     parts.append(
         f'<h2 id="equal-quality">Equal quality: what plain rendering would need</h2>{switch}'
     )
@@ -185,6 +199,7 @@ def _bias_table(result: ExperimentResult, view: OverallView) -> str:
 
 def _overall_error_table(result: ExperimentResult, view: OverallView) -> str:
     spps = result.spps
+    known = result.render_time_known
     rows = []
     by = {(o.method, o.spp): o for o in view.rows}
     for label in result.labels:
@@ -200,16 +215,21 @@ def _overall_error_table(result: ExperimentResult, view: OverallView) -> str:
                 continue
             front = any(p.method == label and p.spp == spp for p in view.pareto)
             lim = _LIM_MARK if o.limited else ""
+            time = _sec(o.seconds) if known else f"denoise {_sec(o.denoise_seconds)}"
             cells.append(
                 f'<td class="num{" front" if front else ""}">{_g(o.relmse)}{lim}'
-                f'<span class="sub">{_sec(o.seconds)}</span></td>'
+                f'<span class="sub">{time}</span></td>'
             )
         cls = ' class="noisy"' if label == NOISY else ""
         rows.append(f"<tr{cls}><td>{_esc(label)}</td>{''.join(cells)}</tr>")
     head = ["method", *(f"{s} spp" for s in spps)]
     return (
         '<p class="small">Each cell: relMSE (geometric mean over scenes) and, below, the mean '
-        "total seconds (render + denoise). Green cells are on the Pareto front.</p>"
+        + (
+            "total seconds (render + denoise). Green cells are on the Pareto front.</p>"
+            if known
+            else "denoise seconds (render time unknown: no total, no Pareto front).</p>"
+        )
         + _table(head, rows)
     )
 
@@ -258,12 +278,15 @@ def _overall_eq_table(result: ExperimentResult, view: OverallView) -> str:
         cells = []
         for spp in spps:
             o = by.get((label, spp))
-            if o is None or not o.complete or o.speedup is None:
+            if o is None or not o.complete or (o.speedup is None and o.eq_spp is None):
                 cells.append("<td>\u2013</td>")
                 continue
             dag = ""
             if o.extrapolated:
                 dag = f'<span title="1/N law used in {o.extrapolated} scene(s)">†</span>'
+            if o.speedup is None:  # render time unknown: the spp alone
+                cells.append(f'<td class="num">{_g(o.eq_spp)} spp{dag}</td>')
+                continue
             eq_spp = _sub(f"{_g(o.eq_spp)} spp")
             cells.append(f'<td class="num">{_g(o.speedup)}×{dag}{eq_spp}</td>')
         rows.append(f"<tr><td>{_esc(label)}</td>{''.join(cells)}</tr>")

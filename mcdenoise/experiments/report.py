@@ -43,6 +43,7 @@ from mcdenoise.experiments.analysis import (
     number,
     relmse_of,
 )
+from mcdenoise.experiments.dataset import read_level, read_reference
 from mcdenoise.experiments.htmlkit import LIM_MARK as _LIM_MARK
 from mcdenoise.experiments.htmlkit import esc as _esc
 from mcdenoise.experiments.htmlkit import g as _g
@@ -279,6 +280,8 @@ def _scene_plots(result: ExperimentResult, scene: SceneSummary, index: int, out:
         floor=scene.noise_floor,
         title=f"{scene.id}: error vs samples per pixel",
     )
+    if not result.render_time_known:
+        return [spp_name]
     plot_error_vs_time(
         out / "images" / time_name,
         plot_series(result, recs, "total_seconds"),
@@ -387,7 +390,8 @@ def _scene_table(result: ExperimentResult, scene: SceneSummary) -> str:
             eq_text = ""
             if eq:
                 dag = "†" if eq.get("extrapolated") else ""
-                eq_text = _sub(f"= {_g(eq.get('spp'))} spp plain, {_g(eq.get('speedup'))}×{dag}")
+                speed = f", {_g(eq.get('speedup'))}×" if eq.get("speedup") is not None else ""
+                eq_text = _sub(f"= {_g(eq.get('spp'))} spp plain{speed}{dag}")
             times = f"{_sec(r.get('render_seconds'))} + {_sec(r.get('denoise_seconds'))}"
             times += _process_mark(r)
             cls = "num front" if r.get("pareto") else "num"
@@ -461,7 +465,7 @@ def _strip(result: ExperimentResult, scene: SceneSummary, index: int, out: Path)
     from mcdenoise.io import load_buffers
 
     spp = result.strip_spp
-    ref_full = load_buffers(scene.reference_file)["color"].numpy().astype(np.float64)
+    ref_full = read_reference(scene.reference_file)["color"].numpy().astype(np.float64)
     exposure = auto_exposure(ref_full)
     window = choose_crop(ref_full, exposure)
     ref = crop(ref_full, window).astype(np.float64)
@@ -474,7 +478,8 @@ def _strip(result: ExperimentResult, scene: SceneSummary, index: int, out: Path)
         if r is None:
             continue
         if label == NOISY:
-            img = load_buffers(scene.noisy_file, part=f"spp{spp}")["color"].numpy()
+            level = next(lv for lv in scene.levels if lv.spp == spp)
+            img = read_level(scene.noisy_file, level)["color"].numpy()
         elif r.get("output"):
             p = Path(r["output"])
             p = p if p.is_absolute() else out / p
@@ -566,6 +571,8 @@ def _scene_section(
         facts.append(
             f"plain rendering costs {_g(c.seconds_per_spp)} s per spp (at {c.spp[-1]} spp, JIT "
             "excluded)"
+            if math.isfinite(c.seconds_per_spp)
+            else "render time unknown"
         )
     parts = [
         f'<h2 id="scene-{_esc(_slug(scene.id))}">Scene: {_esc(scene.id)}</h2>',
@@ -581,8 +588,9 @@ def _scene_section(
             + "</div>"
         )
     parts.append(_scene_table(result, scene))
-    summary = f"<summary>Equal-time table of {_esc(scene.id)}</summary>"
-    parts.append(f"<details>{summary}{equal_time_table(scene.equal_time)}</details>")
+    if result.render_time_known:
+        summary = f"<summary>Equal-time table of {_esc(scene.id)}</summary>"
+        parts.append(f"<details>{summary}{equal_time_table(scene.equal_time)}</details>")
     parts.append(_all_metrics_table(result, scene))
     if scene.is_sequence:
         from mcdenoise.experiments.temporal_report import scene_images, scene_table

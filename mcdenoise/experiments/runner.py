@@ -53,7 +53,14 @@ from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import compute_metrics
 from mcdenoise.eval.results import jsonable
 from mcdenoise.experiments.analysis import assemble
-from mcdenoise.experiments.dataset import Level, SceneData, load_dataset, prepare_data
+from mcdenoise.experiments.dataset import (
+    Level,
+    SceneData,
+    load_dataset,
+    prepare_data,
+    read_level,
+    read_reference,
+)
 from mcdenoise.experiments.entries import MethodEntry, plan_methods, run_device
 from mcdenoise.experiments.report import write_experiment_report
 from mcdenoise.experiments.shards import (
@@ -213,7 +220,7 @@ def run_unit(
     ref_name = str(scene.reference)
     if entry.is_noisy:
         image = buffers["color"].numpy()
-        name = f"{scene.noisy}#{level.part}"
+        name = str(level.file) if level.file is not None else f"{scene.noisy}#{level.part}"
     else:
         from mcdenoise.denoise import denoise, get_method
 
@@ -242,7 +249,12 @@ def run_unit(
     values = compute_metrics(
         image, reference, list(settings.metrics), output_name=name, reference_name=ref_name
     )
-    record["total_seconds"] = level.render_seconds + float(record["denoise_seconds"])
+    # unknown render time (a folder without manifest): the total is unknown too
+    record["total_seconds"] = (
+        None
+        if level.render_seconds is None
+        else level.render_seconds + float(record["denoise_seconds"])
+    )
     record["metrics"] = values.values
     record["unavailable"] = values.unavailable
     record["failed"] = values.failed
@@ -276,7 +288,7 @@ def _base_record(unit: Unit, settings: RunSettings) -> dict[str, Any]:
         "method": entry.label,
         "base_method": entry.method,
         "params": entry.params(),
-        "input": {"file": str(scene.noisy.resolve()), "part": level.part},
+        "input": {"file": str((level.file or scene.noisy).resolve()), "part": level.part},
         "render_seconds": level.render_seconds,
         "render_jit_seconds_excluded": level.jit_seconds,
         "denoise_seconds": 0.0,
@@ -338,11 +350,12 @@ def _write_output(unit: Unit, result: Any, median: float, buffers: Any, out: Pat
     attrs: dict[str, Any] = result.attributes()
     attrs["mcdenoise:seconds"] = float(median)  # the median of the timed runs
     attrs["mcdenoise:label"] = unit.entry.label
-    attrs["mcdenoise:source"] = str(unit.scene.noisy.resolve())
+    attrs["mcdenoise:source"] = str((unit.level.file or unit.scene.noisy).resolve())
     for key in SCENE_ATTRIBUTES:  # which scene this is: `mcdenoise eval` checks it
         if key in buffers.attributes:
             attrs[key] = buffers.attributes[key]
-    attrs["mcdenoise:source_part"] = unit.level.part
+    if unit.level.part:
+        attrs["mcdenoise:source_part"] = unit.level.part
     attrs["mcdenoise:spp"] = int(unit.level.spp)
     save_buffers(path, image, attributes=attrs)
 
@@ -455,11 +468,11 @@ def run_units(
             if ref_key not in loaded:
                 loaded.clear()
                 loaded[ref_key] = _load_reference(scene)
-            level_key = f"{scene.id}#{level.part}"
+            level_key = f"{scene.id}#{level.spp}"
             if level_key not in loaded:
                 for k in [k for k in loaded if not k.startswith("ref:")]:
                     del loaded[k]
-                loaded[level_key] = _load_level(scene, level.part)
+                loaded[level_key] = _load_level(scene, level)
             bar.set_postfix_str(f"{scene.id} {level.spp} spp {unit.entry.label}")
             run = run_sequence_unit if scene.is_sequence else run_unit
             record = run(unit, loaded[level_key], loaded[ref_key], out, settings, device)
@@ -477,16 +490,16 @@ def _load_reference(scene: SceneData) -> Any:
     """The reference colour ``(3, H, W)``, or for a sequence the list of its frames'."""
     if scene.is_sequence:
         return [_load_color(f.reference)[0] for f in scene.frames]
-    return _load_color(scene.reference)[0]
+    return read_reference(scene.reference)["color"].numpy()
 
 
-def _load_level(scene: SceneData, part: str) -> Any:
-    """The level ``part`` as ``FeatureBuffers``, or for a sequence the list of its frames'."""
+def _load_level(scene: SceneData, level: Level) -> Any:
+    """The level as ``FeatureBuffers``, or for a sequence the list of its frames'."""
     if scene.is_sequence:
         from mcdenoise.experiments.sequences import load_frames
 
-        return load_frames([f.noisy for f in scene.frames], part)
-    return _load_color(scene.noisy, part)[1]
+        return load_frames([f.noisy for f in scene.frames], level.part)
+    return read_level(scene.noisy, level)
 
 
 def _output_present(record: Mapping[str, Any], out: Path) -> bool:
@@ -605,9 +618,10 @@ def run_experiment(
         return summary
     scenes = load_dataset(
         folder,
-        load_ids,
+        load_ids or None,
         spec.spp if (spec.folder is None or spec.spp_given) else None,
         sequences=sequences,
+        references=spec.references,
     )
     levels = [lv.spp for lv in scenes[0].levels]
     strip = spec.strip_level(levels)

@@ -29,6 +29,10 @@ nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
                                           # (relative to this file; used as it is, never
                                           # rendered into; a folder of sequences, rendered
                                           # with --frames, makes a sequence experiment)
+    # references = "../refs"             # a folder without manifest.json: its inputs
+                                          # (any profile; or OIDN's training layout) and
+                                          # their references (default: its ref/), matched
+                                          # by name; render time unknown (see below)
 
     [scenes.animate.cornell]              # sequences only: motion for the scene spec named
     animation = { camera_path = "orbit", angle = 12 }   # "cornell": its [animation] table
@@ -77,6 +81,9 @@ nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
 
 With ``[scenes] folder``, the ladder, size and reference come from that folder's manifest;
 ``[render]`` may then only give ``spp``, a subset of the folder's levels.
+A ``[scenes] folder`` without ``manifest.json`` (inputs from any renderer profile, or OIDN's
+training layout) is read by :mod:`mcdenoise.experiments.folder_data`: the levels come from the
+file names (or parts ``spp<n>``), the render seconds are unknown.
 
 Sequences (``frames = N``, or a folder rendered with ``--frames``): every scene is a sequence
 of ``N`` frames (:mod:`mcdenoise.render.sequences`; camera path and moving objects from the
@@ -148,7 +155,7 @@ _TOP_KEYS = (
     "stats",
     "report",
 )
-_SCENE_KEYS = ("specs", "random", "folder", "animate")
+_SCENE_KEYS = ("specs", "random", "folder", "references", "animate")
 _ANIMATE_KEYS = ("animation", "move")
 _MOVE_KEYS = ("object", "translate")
 _RENDER_KEYS = (
@@ -207,6 +214,8 @@ class ExperimentSpec:
     scene_specs: tuple[Path, ...] = ()
     random: int = 0
     folder: Path | None = None
+    #: references of a folder without manifest (default: its ``ref/``)
+    references: Path | None = None
     width: int = 128
     height: int = 128
     spp: tuple[int, ...] = (1, 2, 4, 8, 16)
@@ -250,6 +259,8 @@ class ExperimentSpec:
             d["render"]["frames"] = self.frames
             d["scenes"]["animate"] = {k: dict(v) for k, v in self.animate.items()}
             d["report"]["warmup_frames"] = self.warmup_frames
+        if self.references is not None:  # a spec without it keeps its form
+            d["scenes"]["references"] = str(self.references)
         if self.externals:  # a spec without externals keeps its form
             d["external"] = [e.to_dict() for e in self.externals]
         return d
@@ -439,6 +450,7 @@ def parse_experiment(
     # scenes
     scenes = _table(ctx, "scenes", top.get("scenes", {}), _SCENE_KEYS)
     folder = None
+    references = None
     specs: tuple[Path, ...] = ()
     random = _int(ctx, "scenes.random", scenes.get("random", 0), lo=0)
     if "folder" in scenes:
@@ -447,6 +459,15 @@ def parse_experiment(
         folder = ctx.resolve(_str(ctx, "scenes.folder", scenes["folder"]))
         if not folder.is_dir():
             raise ctx.error("scenes.folder", f"{scenes['folder']!r} is not a folder ({folder})")
+        if "references" in scenes:
+            references = ctx.resolve(_str(ctx, "scenes.references", scenes["references"]))
+            if not references.is_dir():
+                raise ctx.error(
+                    "scenes.references",
+                    f"{scenes['references']!r} is not a folder ({references})",
+                )
+    elif "references" in scenes:
+        raise ctx.error("scenes.references", "goes with scenes.folder (a folder of inputs)")
     else:
         if "specs" in scenes:
             specs = _scene_files(ctx, "scenes.specs", scenes["specs"])
@@ -610,6 +631,7 @@ def parse_experiment(
         scene_specs=specs,
         random=random,
         folder=folder,
+        references=references,
         width=width,
         height=height,
         spp=spp,

@@ -39,7 +39,7 @@ def test_fingerprint_follows_the_spec_and_seed(tmp_path: Path):
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
-        ("no-manifest", "no manifest.json"),
+        ("no-manifest", "no manifest.json and no reference"),
         ("missing-file", "file .* is missing"),
         ("frames", "holds sequences"),
         ("level", "has no level"),
@@ -49,8 +49,10 @@ def test_fingerprint_follows_the_spec_and_seed(tmp_path: Path):
 def test_unusable_folders_are_refused_with_one_line(tmp_path: Path, damage: str, message: str):
     folder = make_render_folder(tmp_path / "d")
     ids, spp = None, None
-    if damage == "no-manifest":
+    if damage == "no-manifest":  # and no references: not a folder of inputs either
         (folder / "manifest.json").unlink()
+        for ref in (folder / "ref").iterdir():
+            ref.unlink()
     elif damage == "missing-file":
         (folder / "ref" / "beta.exr").unlink()
     elif damage == "frames":
@@ -64,6 +66,19 @@ def test_unusable_folders_are_refused_with_one_line(tmp_path: Path, damage: str,
     with pytest.raises(ExperimentError, match=message) as info:
         load_dataset(folder, ids, spp)
     assert "\n" not in str(info.value)
+
+
+def test_a_render_folder_without_its_manifest_is_a_folder_of_inputs(tmp_path: Path):
+    """Levels from the parts spp<n>, references from ref/, the render seconds unknown."""
+    folder = make_render_folder(tmp_path / "d")
+    with_manifest = load_dataset(folder)
+    (folder / "manifest.json").unlink()
+    scenes = load_dataset(folder)
+    assert [s.id for s in scenes] == [s.id for s in with_manifest]
+    for s, m in zip(scenes, with_manifest, strict=True):
+        assert [(lv.spp, lv.part) for lv in s.levels] == [(lv.spp, lv.part) for lv in m.levels]
+        assert all(lv.render_seconds is None for lv in s.levels)
+        assert s.reference == m.reference
 
 
 def test_render_folder_is_relative_to_the_output(tmp_path: Path):
