@@ -7,8 +7,8 @@ methods differ in the kernel they were published with:
 
 * Crytek SSAO (Mittring 2007) and Chapman's hemisphere SSAO: a 4×4 box over the 4×4 rotation
   tile (:func:`box_offsets`);
-* HBAO (Bavoil & Sainz 2008; NVIDIA's HBAO+ keeps it): a cross-bilateral Gaussian, depth
-  weighted (:func:`gaussian_offsets`);
+* HBAO (Bavoil & Sainz 2008): a cross-bilateral Gaussian, depth weighted, run as an x and a
+  y pass as NVIDIA's HBAO+ does (:func:`gaussian_line_offsets`);
 * scalable AO (McGuire et al. 2012): a separable bilateral of radius 4 with stride 2 and the
   Gaussian weights 0.153, 0.144, 0.122, 0.092, 0.061 (:data:`SAO_WEIGHTS`), run as a
   horizontal then a vertical pass;
@@ -66,14 +66,18 @@ def sao_offsets(horizontal: bool, stride: int = 2) -> list[tuple[int, int, float
     return taps
 
 
-def _shift(t: Tensor, dy: int, dx: int) -> Tensor:
-    """``t`` ``(C, H, W)`` sampled at ``(y + dy, x + dx)``, zero outside."""
-    h, w = t.shape[-2:]
-    p = max(abs(dy), abs(dx))
-    if p == 0:
-        return t
-    padded = F.pad(t.unsqueeze(0), (p, p, p, p)).squeeze(0)
-    return padded[:, p + dy : p + dy + h, p + dx : p + dx + w]
+def gaussian_line_offsets(
+    radius: int, horizontal: bool, sigma: float | None = None
+) -> list[tuple[int, int, float]]:
+    """One pass of a separable Gaussian of ``radius`` (σ = (radius + 1) / 2 by default): the
+    horizontal or the vertical half of :func:`gaussian_offsets` (HBAO+'s blur runs as an x and
+    a y pass)."""
+    s = sigma if sigma is not None else (radius + 1) / 2.0
+    taps = []
+    for k in range(-radius, radius + 1):
+        w = math.exp(-(k * k) / (2.0 * s * s))
+        taps.append((0, k, w) if horizontal else (k, 0, w))
+    return taps
 
 
 def bilateral(
@@ -91,20 +95,22 @@ def bilateral(
     a fraction of it, at which a neighbour's weight has fallen to 1/e; ``normal_power`` the
     exponent of the normal weight. Returns ``(H, W)``.
     """
-    valid = g.valid.float().unsqueeze(0)
+    h, w = ao.shape
+    pad = max((max(abs(dy), abs(dx)) for dy, dx, _ in taps), default=0)
+    # one padded stack (position, normal, valid, ao), sliced per tap: no copy per tap
+    stack = torch.cat([g.position, g.normal, g.valid.float().unsqueeze(0), ao.unsqueeze(0)])
+    padded = F.pad(stack.unsqueeze(0), (pad, pad, pad, pad)).squeeze(0)
     p, n = g.position, g.normal
     num = torch.zeros_like(ao)
     den = torch.zeros_like(ao)
     scale = 1.0 / max(plane_sigma * radius, 1e-12)
-    for dy, dx, w in taps:
-        pj = _shift(p, dy, dx)
-        nj = _shift(n, dy, dx)
-        vj = _shift(valid, dy, dx)[0]
-        aj = _shift(ao.unsqueeze(0), dy, dx)[0]
-        plane = ((pj - p) * n).sum(0) * scale
-        cos = (nj * n).sum(0).clamp_min(0.0)
-        wt = w * vj * torch.exp(-plane * plane) * cos.pow(normal_power)
-        num = num + wt * aj
+    for dy, dx, wt0 in taps:
+        view = padded[:, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
+        d = view[:3] - p
+        plane = (d[0] * n[0] + d[1] * n[1] + d[2] * n[2]) * scale
+        cos = (view[3] * n[0] + view[4] * n[1] + view[5] * n[2]).clamp_min(0.0)
+        wt = wt0 * view[6] * torch.exp(-plane * plane) * cos.pow(normal_power)
+        num = num + wt * view[7]
         den = den + wt
     out = torch.where(den > 0, num / den.clamp_min(1e-30), ao)
     return torch.where(g.valid, out, ao)
@@ -124,6 +130,7 @@ __all__ = [
     "bilateral",
     "blur_passes",
     "box_offsets",
+    "gaussian_line_offsets",
     "gaussian_offsets",
     "sao_offsets",
 ]

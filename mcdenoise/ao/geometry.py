@@ -30,6 +30,14 @@ from torch import Tensor
 MIN_NORMAL_LENGTH = 0.2
 
 
+def norm3(v: Tensor, keepdim: bool = False) -> Tensor:
+    """Euclidean length over the first axis of ``v`` ``(3, ...)``, written out: on CPU
+    ``Tensor.norm(dim=0)`` of a ``(3, H, W)`` tensor (a strided reduction) was measured 20-30×
+    slower and took two thirds of GTAO's time (torch profiler, 256²)."""
+    n = torch.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return n.unsqueeze(0) if keepdim else n
+
+
 @dataclass
 class ViewGBuffer:
     """View-space G-buffer of one image.
@@ -97,7 +105,8 @@ class ViewGBuffer:
 
     @staticmethod
     def _gather(t: Tensor, idx: Tensor) -> Tensor:
-        return t.reshape(3, -1)[:, idx.reshape(-1)].reshape(3, *idx.shape)
+        # index_select: about 3x faster than advanced indexing on CPU (measured, 512²)
+        return torch.index_select(t.reshape(3, -1), 1, idx.reshape(-1)).reshape(3, *idx.shape)
 
 
 def ray_directions(height: int, width: int, focal: float, device: torch.device) -> Tensor:
@@ -108,7 +117,7 @@ def ray_directions(height: int, width: int, focal: float, device: torch.device) 
         indexing="ij",
     )
     d = torch.stack([(u - width / 2.0) / focal, (v - height / 2.0) / focal, torch.ones_like(u)])
-    return d / d.norm(dim=0, keepdim=True)
+    return d / norm3(d, keepdim=True)
 
 
 def normals_from_positions(position: Tensor, valid: Tensor) -> Tensor:
@@ -140,7 +149,7 @@ def normals_from_positions(position: Tensor, valid: Tensor) -> Tensor:
 
     dx, dy = side(2), side(1)
     n = torch.cross(dx, dy, dim=0)
-    length = n.norm(dim=0, keepdim=True)
+    length = norm3(n, keepdim=True)
     n = torch.where(length > 0, n / length.clamp_min(1e-30), torch.zeros_like(n))
     return _face_viewer(n, position) * valid
 
@@ -193,7 +202,7 @@ def view_gbuffer(
             raise ValueError("world-space normals need the world_to_view rotation")
         rot = world_to_view.to(device=depth.device, dtype=torch.float32)
         n = torch.einsum("ij,jhw->ihw", rot, normal.float())
-        length = n.norm(dim=0, keepdim=True)
+        length = norm3(n, keepdim=True)
         good = torch.isfinite(length) & (length > MIN_NORMAL_LENGTH)
         n = torch.where(good, n / length.clamp_min(1e-30), rebuilt)
         n = _face_viewer(n, position) * valid
@@ -245,6 +254,7 @@ __all__ = [
     "ViewGBuffer",
     "falloff_weight",
     "interleaved_noise",
+    "norm3",
     "normals_from_positions",
     "ray_directions",
     "view_gbuffer",

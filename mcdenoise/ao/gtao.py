@@ -34,7 +34,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.ao.blur import blur_passes, gaussian_offsets
-from mcdenoise.ao.geometry import ViewGBuffer, falloff_weight, interleaved_noise
+from mcdenoise.ao.geometry import ViewGBuffer, falloff_weight, interleaved_noise, norm3
 
 #: XeGTAO: the first sample is pushed this many pixels out (the centre pixel says nothing).
 PIXEL_TOO_CLOSE = 1.3
@@ -67,7 +67,7 @@ def gtao(
     p, n = g.position, g.normal
     noise = interleaved_noise(h, w, dev)
     u0, v0 = g.pixel_grid()
-    view = -p / p.norm(dim=0, keepdim=True).clamp_min(1e-12)  # (3, H, W), towards the camera
+    view = -p / norm3(p, keepdim=True).clamp_min(1e-12)  # (3, H, W), towards the camera
     r_px = g.focal * radius / p[2].clamp_min(1e-6)
     min_s = PIXEL_TOO_CLOSE / r_px.clamp_min(1e-6)
     visibility = torch.zeros(h, w, device=dev)
@@ -77,10 +77,10 @@ def gtao(
         direction = torch.stack([cos_phi, sin_phi, torch.zeros_like(phi)])
         ortho = direction - (direction * view).sum(0, keepdim=True) * view
         axis = torch.cross(ortho, view, dim=0)
-        axis = axis / axis.norm(dim=0, keepdim=True).clamp_min(1e-12)
+        axis = axis / norm3(axis, keepdim=True).clamp_min(1e-12)
         n_proj = n - axis * (n * axis).sum(0, keepdim=True)
         sign = torch.sign((ortho * n_proj).sum(0))
-        n_len = n_proj.norm(dim=0).clamp_min(1e-12)
+        n_len = norm3(n_proj).clamp_min(1e-12)
         cos_n = ((n_proj * view).sum(0) / n_len).clamp(0.0, 1.0)
         gamma = sign * torch.acos(cos_n)
         low0 = torch.cos(gamma + math.pi / 2)
@@ -94,7 +94,7 @@ def gtao(
             for side, low in ((1.0, low0), (-1.0, low1)):
                 q, ok = g.fetch(u0 + side * du, v0 + side * dv)
                 delta = q - p
-                dist = delta.norm(dim=0)
+                dist = norm3(delta)
                 shc = (delta * view).sum(0) / dist.clamp_min(1e-12)
                 wgt = falloff_weight(dist, radius, falloff) * ok.float()
                 shc = low + (shc - low) * wgt

@@ -18,7 +18,7 @@ Choices made here:
   Bavoil's ``1 − ρ²/R²`` attenuation is not the ray-traced AO's falloff.
 * Directions are rotated and steps jittered per pixel by the 4×4 interleaved noise, samples
   are snapped to pixel centres, and the result gets HBAO's cross-bilateral Gaussian blur
-  (radius 4, :mod:`mcdenoise.ao.blur`).
+  (radius 4, separable as in HBAO+, :mod:`mcdenoise.ao.blur`).
 
 What it estimates: ``sin h`` weights the hemisphere by solid angle (``dω = cos α dα dφ`` in
 elevation ``α``), not by the cosine to the normal as the reference does: for a horizon at
@@ -33,8 +33,8 @@ import math
 import torch
 from torch import Tensor
 
-from mcdenoise.ao.blur import blur_passes, gaussian_offsets
-from mcdenoise.ao.geometry import ViewGBuffer, falloff_weight, interleaved_noise
+from mcdenoise.ao.blur import blur_passes, gaussian_line_offsets
+from mcdenoise.ao.geometry import ViewGBuffer, falloff_weight, interleaved_noise, norm3
 
 
 def hbao(
@@ -55,7 +55,7 @@ def hbao(
         steps: samples per direction.
         bias: sine of the angle bias (a horizon must rise above it to occlude).
         falloff: fraction of ``radius`` over which occluders fade out (0: step).
-        blur: apply the depth-aware Gaussian blur (radius 4).
+        blur: apply the depth-aware Gaussian blur (radius 4, an x and a y pass).
     """
     if directions < 1 or steps < 1 or not radius > 0:
         raise ValueError("hbao: directions, steps >= 1 and radius > 0 required")
@@ -79,7 +79,7 @@ def hbao(
             v = torch.round(v0 - 0.5 + dv * off) + 0.5
             q, ok = g.fetch(u, v)
             hv = q - p
-            dist = hv.norm(dim=0)
+            dist = norm3(hv)
             sin_new = (hv * n).sum(0) / dist.clamp_min(1e-12)
             wgt = falloff_weight(dist, radius, falloff) * ok.float()
             rise = (sin_new > sin_h) & (wgt > 0)
@@ -88,7 +88,9 @@ def hbao(
         occlusion = occlusion + ao_dir
     ao = 1.0 - occlusion / directions
     if blur:
-        ao = blur_passes(ao, g, [gaussian_offsets(4)], radius)
+        ao = blur_passes(
+            ao, g, [gaussian_line_offsets(4, True), gaussian_line_offsets(4, False)], radius
+        )
     return torch.where(g.valid, ao, torch.ones_like(ao)).clamp(0.0, 1.0)
 
 

@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.ao.blur import blur_passes, box_offsets
-from mcdenoise.ao.geometry import ViewGBuffer, falloff_weight, interleaved_noise
+from mcdenoise.ao.geometry import ViewGBuffer, falloff_weight, interleaved_noise, norm3
 
 
 def hemisphere_kernel(samples: int, seed: int = 0) -> Tensor:
@@ -61,7 +61,7 @@ def tangent_frame(n: Tensor) -> tuple[Tensor, Tensor]:
     ref[0] = use_x.float()
     ref[1] = (~use_x).float()
     t = torch.cross(ref, n, dim=0)
-    t = t / t.norm(dim=0, keepdim=True).clamp_min(1e-12)
+    t = t / norm3(t, keepdim=True).clamp_min(1e-12)
     b = torch.cross(n, t, dim=0)
     return t, b
 
@@ -102,7 +102,7 @@ def ssao(
         sp = p + radius * (k[0] * t + k[1] * b + k[2] * g.normal)
         u, v = g.project(sp)
         q, nq, ok = g.fetch_with_normal(u, v)
-        dist = (q - p).norm(dim=0)
+        dist = norm3(q - p)
         hit = ok & ((nq * (sp - q)).sum(0) < -bias * radius)
         occluded = occluded + hit.float() * falloff_weight(dist, radius, falloff)
     ao = 1.0 - occluded / samples
