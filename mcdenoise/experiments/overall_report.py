@@ -292,11 +292,16 @@ def _overall_eq_table(result: ExperimentResult, view: OverallView) -> str:
         rows.append(f"<tr><td>{_esc(label)}</td>{''.join(cells)}</tr>")
     if not rows:
         return '<p class="notes">No denoiser in this run.</p>'
+    what = (
+        "speed-up at equal quality (seconds plain rendering needs for the method's error ÷ "
+        "the method's total seconds) and, below, the spp plain rendering needs"
+        if result.render_time_known
+        else "the spp plain rendering needs for the method's error (render time unknown: no "
+        "seconds, no speed-up)"
+    )
     return (
-        '<p class="small">Each cell: speed-up at equal quality (seconds plain rendering needs '
-        "for the method's error ÷ the method's total seconds) and, below, the spp plain "
-        "rendering needs; geometric means over scenes. † = extrapolated beyond the measured "
-        "ladder (1/N law) in some scene.</p>"
+        f'<p class="small">Each cell: {what}; geometric means over scenes. † = extrapolated '
+        "beyond the measured ladder (1/N law) in some scene.</p>"
         + _table(["method", *(f"from {s} spp" for s in spps)], rows)
     )
 

@@ -320,8 +320,13 @@ def _run_table(result: ExperimentResult) -> str:
         ),
         (
             "spp ladder",
-            f"{_esc(ladder)} (progressive: each level reuses the samples of the lower ones); "
-            f"reference {_esc(ref_spp)} spp",
+            f"{_esc(ladder)} "
+            + (
+                "(progressive: each level reuses the samples of the lower ones); "
+                if result.render_time_known
+                else "(read from the files: a folder without manifest); "
+            )
+            + f"reference {_esc(ref_spp)} spp",
         ),
         ("Data", f"render folder {_esc(folder)}, data hash <code>{_esc(data_hash)}</code>…"),
         (
