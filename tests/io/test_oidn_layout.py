@@ -131,3 +131,23 @@ def test_bad_oidn_sets_are_refused_by_name(tmp_path):
         read_oidn_level(tmp_path / "b" / "y_0004spp.hdr.exr")
     with pytest.raises(InputError, match=r"no manifest\.json"):
         write_oidn_layout(tmp_path / "b", tmp_path / "out")
+
+
+def test_oidns_own_reader_sees_the_written_set(tmp_path):
+    """What OIDN's training/dataset.py does with a set (read in its source, not run here): it
+    groups ``<dir>/**/*.*.exr`` by the name before the last ``_<spp|ref|...>``, takes the
+    last name of a group in sorted order as the target, and reads each feature with
+    OpenImageIO's ``read_image(chbegin=0, chend=3, format=FLOAT)``. On the written set the
+    target is the ``_ref`` version and the first three channels are the pixels."""
+    oiio = pytest.importorskip("OpenImageIO")
+    src = render_folder(tmp_path / "render", ids=("alpha",), spp=(4, 16))
+    write_oidn_layout(src, tmp_path / "oidn")
+    names = sorted({p.name.split(".")[0] for p in (tmp_path / "oidn").glob("*.*.exr")})
+    assert names == ["alpha_0004spp", "alpha_0016spp", "alpha_ref"]  # the last is the target
+    for stem, part in (("alpha_0004spp", "spp4"), ("alpha_0016spp", "spp16")):
+        orig = load_buffers(src / "alpha.exr", part=part)
+        for feature, buffer in (("hdr", "color"), ("alb", "albedo"), ("nrm", "normal")):
+            inp = oiio.ImageInput.open(str(tmp_path / "oidn" / f"{stem}.{feature}.exr"))
+            hwc = inp.read_image(subimage=0, miplevel=0, chbegin=0, chend=3, format=oiio.FLOAT)
+            inp.close()
+            assert np.array_equal(np.moveaxis(hwc, -1, 0), orig[buffer].numpy()), (stem, feature)
