@@ -8,6 +8,10 @@ peer in the same run. Renders made before the camera was recorded in the header 
 the manifest (the spec's camera and ``render.ao_radius``).
 
     python benchmarks/bench_ao.py DIR [--threads 1] [--repeat 2]
+    python benchmarks/bench_ao.py --speed 512 [--threads 1]
+
+``--speed N`` times the four methods alone on a synthetic N×N G-buffer (a floor and two
+walls seen from a camera pitched 25° down) and prints CPU ms per frame and per megapixel.
 
 Times are for the image size rendered; ``ms/MP`` scales them to one megapixel (the
 methods are linear in the pixel count). For the screen-space methods ``cpu ms`` is the
@@ -19,11 +23,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
 import torch
 
+from mcdenoise.ao import ESTIMATORS
+from mcdenoise.ao.geometry import ViewGBuffer, ray_directions, view_gbuffer
 from mcdenoise.eval.metrics import relmse, ssim
 from mcdenoise.io import load_buffers
 from mcdenoise.io.camera import CAMERA_ATTR
@@ -45,13 +52,59 @@ def _camera_from_manifest(record: dict) -> str:
     return json.dumps(camera_metadata(camera, ao_radius=radius))
 
 
+def synthetic_gbuffer(size: int) -> ViewGBuffer:
+    """A floor (y = 1, view frame y down) and two walls (z = 3, x = 1.5), camera pitched
+    25° down, horizontal fov 60°: every pixel sees a surface, corners included."""
+    f = size / (2.0 * math.tan(math.radians(30.0)))
+    d = ray_directions(size, size, f, torch.device("cpu"))
+    a = math.radians(25.0)
+    rot = torch.tensor(
+        [[1, 0, 0], [0, math.cos(a), math.sin(a)], [0, -math.sin(a), math.cos(a)]],
+        dtype=torch.float32,
+    )
+    dw = torch.einsum("ij,jhw->ihw", rot, d)
+    best = torch.full((size, size), math.inf)
+    normal = torch.zeros(3, size, size)
+    for n, c in (((0.0, 1.0, 0.0), 1.0), ((0.0, 0.0, 1.0), 3.0), ((1.0, 0.0, 0.0), 1.5)):
+        nt = torch.tensor(n)
+        den = (dw * nt[:, None, None]).sum(0)
+        t = c / torch.where(den.abs() > 1e-9, den, torch.full_like(den, 1e-9))
+        hit = (t > 0) & (t < best)
+        best = torch.where(hit, t, best)
+        normal = torch.where(hit[None], nt[:, None, None].expand(3, size, size), normal)
+    depth = torch.where(torch.isfinite(best), best, torch.zeros_like(best))
+    return view_gbuffer(depth, f, normal=normal, world_to_view=rot.T)
+
+
+def speed(size: int, repeat: int) -> None:
+    g = synthetic_gbuffer(size)
+    mp = size * size / 1e6
+    print(
+        f"synthetic {size}x{size}, {torch.get_num_threads()} thread(s), CPU time best of {repeat}"
+    )
+    for name, estimator in ESTIMATORS.items():
+        estimator(g, 0.5)  # untimed
+        best = float("inf")
+        for _ in range(max(1, repeat)):
+            c0 = time.process_time()
+            estimator(g, 0.5)
+            best = min(best, time.process_time() - c0)
+        print(f"{name:<8} {1000 * best:8.0f} ms  {1000 * best / mp:8.0f} ms/MP")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("folder", type=Path)
+    ap.add_argument("folder", type=Path, nargs="?")
+    ap.add_argument("--speed", type=int, metavar="N", help="time on a synthetic NxN G-buffer")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=2, help="timed runs per method (best kept)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    if args.speed:
+        speed(args.speed, args.repeat)
+        return
+    if args.folder is None:
+        ap.error("give a render folder or --speed N")
     manifest = json.loads((args.folder / "manifest.json").read_text())
     print(
         f"threads {args.threads}; SSIM and relMSE against the reference; ms best of {args.repeat}"
