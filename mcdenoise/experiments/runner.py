@@ -64,6 +64,7 @@ from mcdenoise.experiments.dataset import (
 from mcdenoise.experiments.entries import MethodEntry, plan_methods, run_device
 from mcdenoise.experiments.report import write_experiment_report
 from mcdenoise.experiments.shards import (
+    check_rendered,
     host_name,
     missing_message,
     shard_units,
@@ -606,6 +607,8 @@ def run_experiment(
     if rendered is not None:
         summary.rendered = list(rendered.rendered)
         summary.render_skipped = list(rendered.skipped)
+    if merge and spec.folder is None:
+        check_rendered(folder, ids, root)
     # a shard of a rendering spec reads only the images it rendered (the others may not
     # exist yet); its share is whole scenes
     index = {image_id: k for k, image_id in enumerate(ids)}

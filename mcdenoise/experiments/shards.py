@@ -39,6 +39,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from mcdenoise.experiments.spec import ExperimentError
 from mcdenoise.io.atomic import write_text_atomic
 
 #: Folder of the shard records, under ``DIR/work``.
@@ -127,9 +128,15 @@ def read_shard_records(out: Path) -> list[dict[str, Any]]:
     return sorted(records, key=lambda r: tuple(r.get("shard") or (0, 0)))
 
 
-def missing_message(out: Path, missing: Sequence[tuple[str, int, str]], total: int) -> str:
-    """One line for a merge that lacks ``missing`` records: how many, which shards have not
-    finished (from their records), and what to do."""
+def missing_message(
+    out: Path,
+    missing: Sequence[tuple[str, int, str]] | Sequence[str],
+    total: int,
+    *,
+    what: str = "units have no finished record",
+) -> str:
+    """One line for a merge that lacks ``missing`` (unit keys, or image ids with ``what``):
+    how many, which shards have not finished (from their records), and what to do."""
     shards = read_shard_records(out)
     counts = {int(r["shard"][1]) for r in shards if r.get("shard")}
     where = ""
@@ -145,12 +152,28 @@ def missing_message(out: Path, missing: Sequence[tuple[str, int, str]], total: i
         if never:
             bits.append("never started: " + ", ".join(f"{i}/{n}" for i in never))
         where = f" (shards {'; '.join(bits)})" if bits else ""
-    first = ", ".join(f"{s} {p} spp {m}" for s, p, m in list(missing)[:3])
-    more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+    named = [m if isinstance(m, str) else f"{m[0]} {m[1]} spp {m[2]}" for m in missing]
+    first = ", ".join(named[:3])
+    more = f" and {len(named) - 3} more" if len(named) > 3 else ""
     return (
-        f"{out}: {len(missing)} of {total} units have no finished record{where}: {first}{more}; "
+        f"{out}: {len(named)} of {total} {what}{where}: {first}{more}; "
         "run the missing shards (--shard I/N) and merge again"
     )
+
+
+def check_rendered(folder: Path, ids: Sequence[str], out: Path) -> None:
+    """For a merge of a rendering spec: raise :class:`ExperimentError` (one line: how many
+    images, which shards) unless the render folder's manifest lists every image ``ids``."""
+    from mcdenoise.render.manifest import MANIFEST, load_manifest
+
+    have: set[str] = set()
+    if (folder / MANIFEST).is_file():
+        have = {str(r.get("id")) for r in load_manifest(folder).get("images", [])}
+    missing = [x for x in ids if x not in have]
+    if missing:
+        raise ExperimentError(
+            missing_message(out, missing, len(ids), what="images are not rendered yet")
+        )
 
 
 def timing_hosts(records: Sequence[Mapping[str, Any]]) -> dict[str, int]:

@@ -183,6 +183,9 @@ def test_shards_of_a_rendering_spec_render_and_run_their_own_scenes(tmp_path, fa
     assert "rendered 1 image(s)" in first.output and "4 unit(s)" in first.output
     assert (out / "data" / "manifest.shard-1-of-2.json").is_file()
     assert sorted(p.name for p in (out / "work").iterdir()) == ["one", "shards"]
+    early = run("eval", "--experiment", spec, "-o", out, "--merge")
+    assert early.exit_code == 1
+    assert "1 of 2 images are not rendered yet (shards never started: 2/2): two" in early.stderr
     extra = run("eval", "--experiment", spec, "-o", out, "--shard", "3/3")
     assert extra.exit_code == 0  # more shards than scenes: nothing to do
     second = run("eval", "--experiment", spec, "-o", out, "--shard", "2/2")
