@@ -43,7 +43,6 @@ Determinism: the same spec, seed, settings and variant give identical pixel data
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -360,7 +359,6 @@ def render_sequence(
                 "mcdenoise:sequence": job.id,
                 "mcdenoise:frame": f,
                 "mcdenoise:frames": n,
-                "mcdenoise:camera": json.dumps(camera_record(cameras[f])),
             },
         )
         motions = {

@@ -9,7 +9,9 @@ Output folder layout (``DIR``)::
                           attributes
                           mcdenoise:spp, mcdenoise:scene, mcdenoise:image, mcdenoise:seed,
                           mcdenoise:render_seconds (cumulative), mcdenoise:effects,
-                          mcdenoise:plan, mcdenoise:variant, mitsuba:version
+                          mcdenoise:plan, mcdenoise:variant, mitsuba:version,
+                          mcdenoise:camera (JSON: the camera, its to_world matrix, near/far
+                          clip, AO radius; a sequence frame's own camera)
     DIR/ref/<id>.exr      the reference (single part, same buffers, mcdenoise:passes too)
     DIR/manifest.shard-<i>-of-<n>.json    what shard i of n rendered (``1-of-1`` unsharded)
     DIR/manifest.json     all shard manifests merged (:mod:`mcdenoise.render.manifest`):
@@ -97,7 +99,10 @@ def spec_record(spec: SceneSpec) -> dict[str, Any]:
 def image_record(
     job: ImageJob, plan: EffectPlan, config: RenderConfig, variant: str, mitsuba_version: str
 ) -> dict[str, Any]:
-    """The manifest fields an image and a sequence share."""
+    """The manifest fields an image and a sequence share (``camera``: the spec's camera with
+    its matrix, clip planes and AO radius, :func:`mcdenoise.render.scenes.camera_metadata`)."""
+    from mcdenoise.render.scenes import camera_metadata, far_clip
+
     return {
         "id": job.id,
         "index": job.index,
@@ -114,6 +119,9 @@ def image_record(
         "mitsuba_version": mitsuba_version,
         "width": config.width,
         "height": config.height,
+        "camera": camera_metadata(
+            job.spec.camera, far=far_clip(job.spec, plan), ao_radius=plan.ao_radius
+        ),
     }
 
 

@@ -30,6 +30,7 @@ Determinism: the same spec, seed, settings and variant give identical pixel data
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -241,10 +242,15 @@ def render_image(
             f"render_image: Mitsuba variant {mi.variant()!r} is set, not {variant!r} "
             "(call mcdenoise.render.scenes.ensure_variant first)"
         )
+    from mcdenoise.render.scenes import camera_metadata, far_clip
+
     plan = plan_effects(job.spec)
     t0 = time.perf_counter()
     scene = _load_scene(job, plan, config, camera)
     load_seconds = time.perf_counter() - t0
+    view = camera_metadata(
+        camera or job.spec.camera, far=far_clip(job.spec, plan), ao_radius=plan.ao_radius
+    )
     common = {
         "mcdenoise:scene": job.spec.name,
         "mcdenoise:image": job.id,
@@ -253,6 +259,7 @@ def render_image(
         "mcdenoise:plan": plan.describe(),
         "mcdenoise:variant": variant,
         "mitsuba:version": str(mi.__version__),
+        "mcdenoise:camera": json.dumps(view),
         **dict(attributes or {}),
     }
     clock = _JitClock(variant)
