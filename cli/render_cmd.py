@@ -90,6 +90,14 @@ from mcdenoise_cli.options import threads_option
     help="Afterwards also write every image in the layout of data/samples: DIR/<id>_spp<n>.exr "
     "per level (colour float32, features half) and DIR/ref/<id>.exr (colour only).",
 )
+@click.option(
+    "--layout",
+    type=click.Choice(["mcdenoise", "oidn"]),
+    default="mcdenoise",
+    show_default=True,
+    help="oidn: afterwards also write OUT/oidn/ in the training layout of OIDN's toolkit "
+    "(<id>_0004spp.hdr.exr, .alb.exr, .nrm.exr, <id>_ref.hdr.exr; one feature per file).",
+)
 @threads_option(render=True)
 @click.option(
     "--progress/--no-progress",
@@ -111,6 +119,7 @@ def render(
     frames,
     halves,
     samples_out,
+    layout,
     progress,
 ):
     """Render a denoising data set with Mitsuba 3 from scene SPECS (TOML files or folders of
@@ -131,6 +140,8 @@ def render(
     from mcdenoise.render.generate import render_dataset
 
     check_output_folder(out, "-o")
+    if layout == "oidn" and frames is not None:
+        raise click.UsageError("--layout oidn is for still images, not --frames")
     if samples_out is not None:
         check_output_folder(samples_out, "--samples-out")
     width, height = parse_res(res)
@@ -161,3 +172,8 @@ def render(
     )
     if samples_out is not None:
         click.echo(f"samples layout: {len(result.exported)} file(s) in {samples_out}")
+    if layout == "oidn":
+        from mcdenoise.io.oidn_layout import write_oidn_layout
+
+        written = write_oidn_layout(config.out, config.out / "oidn")
+        click.echo(f"oidn layout: {len(written)} file(s) in {config.out / 'oidn'}")

@@ -37,3 +37,16 @@ def test_halves_by_default_and_a_folder_keeps_its_choice(tmp_path: Path) -> None
     r = run("render", str(tmp_path / "ball.toml"), "-o", str(plain), *TINY, "--no-halves")
     assert r.exit_code == 0, r.output + r.stderr
     assert "color_a" not in load_buffers(plain / "ball.exr", part="spp4")
+
+
+@pytest.mark.mitsuba
+def test_layout_oidn_also_writes_the_oidn_training_layout(tmp_path: Path) -> None:
+    pytest.importorskip("mitsuba")
+    (tmp_path / "ball.toml").write_text(BALL_SCENE.format(name="ball"), encoding="utf-8")
+    out = tmp_path / "out"
+    r = run("render", str(tmp_path / "ball.toml"), "-o", str(out), *TINY, "--layout", "oidn")
+    assert r.exit_code == 0, r.output + r.stderr
+    assert (out / "oidn" / "ball_ref.hdr.exr").is_file() and "oidn layout:" in r.output
+    r = run("render", str(tmp_path / "ball.toml"), "-o", str(tmp_path / "s"), *TINY,
+            "--layout", "oidn", "--frames", "2")  # fmt: skip
+    assert r.exit_code != 0 and "--layout oidn is for still images" in r.output + r.stderr
