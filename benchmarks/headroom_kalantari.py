@@ -8,21 +8,31 @@ bandwidths of both passes by -s, 0, +s: 9 candidate filters), and one candidate 
 * per image, by the lowest error over the image,
 
 where the error is either the **true** per-pixel relMSE against the reference (an oracle: the
-headroom a better bandwidth predictor could reach, in-sample, so a little optimistic) or
+headroom a better bandwidth predictor could reach, in-sample, so a little optimistic),
 **SURE** (Stein's unbiased risk estimate: ``(f - y)² + 2 σ² ∂f/∂y``, with the render's
 variance buffer as σ² and a Monte Carlo estimate of the divergence from one random ±1 probe),
 which needs no reference and could run at inference (Li, Wu, Chuang 2012 select filter
-scales this way).
+scales this way), or, on renders with half buffers (``mcdenoise render --halves``), the
+**two-buffer** estimate of :mod:`mcdenoise.methods.selection` (every candidate run on each
+half and judged by the other half; what ``kalantari-xbf`` does with halves). Its rows:
+``halves-block`` (chosen per block, the chosen candidate on the full buffer: the method's
+output; the halves judged after the preparation's firefly clamp), ``halves-raw-block`` (the
+same judged by the raw halves), ``halves-mean-block`` (the mean of the chosen candidate on the
+two halves, NFOR's output, for which the estimate is unbiased) and ``halves-image`` (one
+candidate per image).
 
 It prints the geometric mean over images of each selection's relMSE divided by the model's own
-(``base``) and, where ``benchmarks/results/kalantari.json`` (``bench_kalantari.py --json``)
-has the best fixed filter's relMSE of that image, by that. ``--gaussian-check`` first replaces
+(``base``) and by the best fixed cross-bilateral filter's (``xbf-best``: the parameters of
+``bench_kalantari.py``'s grid search on the training set, per spp, from
+``benchmarks/results/kalantari_grid_xbf*.json``, run on the same noisy image).
+``--ref-dir`` reads the references from another folder (same image ids): a set re-rendered
+with halves can reuse the 2048-spp references of ``data/generated/heldout``. ``--gaussian-check`` first replaces
 the noise of one image by Gaussian noise of the buffer's variance, where SURE is exact in
 expectation, and prints SURE against the true error per candidate: it tells a wrong estimator
 from noise that breaks SURE's assumptions.
 
-    python benchmarks/headroom_kalantari.py [--heldout DIR] [--model shipped|RUN] [--spp 4,16]
-        [--radius 8] [--shift 0.7] [--gaussian-check IMAGE] [--json OUT]
+    python benchmarks/headroom_kalantari.py [--heldout DIR] [--ref-dir DIR] [--model shipped|RUN]
+        [--spp 4,16] [--radius 8] [--shift 0.7] [--gaussian-check IMAGE] [--json OUT]
 """
 
 from __future__ import annotations
@@ -36,18 +46,28 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
 from mcdenoise.filters.box import box_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import relative_squared_error, relmse_map
+from mcdenoise.methods.selection import (
+    choose,
+    half_buffers,
+    has_halves,
+    pick,
+    shifted_offsets,
+    two_buffer_error,
+)
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
 from mcdenoise.prep.kalantari import prepare_for_model
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.dataset import scan_dataset
+from mcdenoise.train.grid import GridResult
 
 REPO = Path(__file__).resolve().parents[1]
-STORED = REPO / "benchmarks" / "results" / "kalantari.json"
+GRIDS = [REPO / "benchmarks" / "results" / f"kalantari_grid_{k}.json" for k in ("xbf", "xbf2")]
 #: Relative size of the probe perturbation (times the pixel's noise standard deviation).
 PROBE = 0.05
 #: Radius of the box filter over the model's output that gives SURE its relMSE weights (a
@@ -62,16 +82,7 @@ def shifts(s: float) -> list[tuple[float, float]]:
 
 def candidates(model: KalantariModel, o: Tensor, s: float) -> list[Tensor]:
     """The model's log-offsets with the spatial and colour bandwidths shifted by -s, 0, +s."""
-    outs = model.card.outputs
-    spatial = [outs.index(n) for n in ("spatial", "spatial2") if n in outs]
-    color = [outs.index(n) for n in ("color", "color2") if n in outs]
-    res = []
-    for ds, dc in shifts(s):
-        oc = o.clone()
-        oc[:, spatial] += ds
-        oc[:, color] += dc
-        res.append(oc)
-    return res
+    return shifted_offsets(model, o, s)
 
 
 def error_maps(
@@ -107,6 +118,76 @@ def select(outputs: Tensor, score: Tensor, radius: int) -> tuple[Tensor, int]:
     return torch.gather(outputs, 1, idx)[:, 0], int(score.mean((2, 3)).argmin(1))
 
 
+def half_outputs(
+    model: KalantariModel, b, s: float
+) -> tuple[list[list[Tensor]], list[tuple[Tensor, Tensor]]]:
+    """Every candidate's output ``(1, 3, H, W)`` on half A and on half B (each half's own
+    features and predicted bandwidths, shifted), and each half's colour and variance after
+    the preparation's firefly clamp (the judges :func:`select_kalantari` uses)."""
+    outs, clamped = [], []
+    for h in ("a", "b"):
+        half = half_buffers(b, h)
+        batch = {k: v[None] for k, v in prepare_for_model(model.card, half).items()}
+        o = model.offsets(batch["features"])
+        outs.append([model.filter(batch, oc) for oc in candidates(model, o, s)])
+        f = batch["factor"]
+        clamped.append((batch["irr"] * f, batch["irr_var"] * f.square()))
+    return outs, clamped
+
+
+def halves_rows(
+    model: KalantariModel, b, outs: Tensor, true: Tensor, pilot: Tensor, ref: Tensor, args
+) -> dict[str, float]:
+    """The two-buffer rows of one image (see the module docstring): judged by the clamped
+    halves (``halves-*``, what the method does) and by the raw halves (``halves-raw-block``)."""
+    (outs_a, outs_b), ((ca, cva), (cb, cvb)) = half_outputs(model, b, args.shift)
+    ha, hb = half_buffers(b, "a"), half_buffers(b, "b")
+    raw = (ha["color"][None], hb["color"][None], ha["color_var"][None], hb["color_var"][None])
+    den = pilot.square() + 0.01
+
+    def estimate(a: Tensor, bb: Tensor, va: Tensor, vb: Tensor) -> Tensor:
+        return torch.cat(
+            [
+                (two_buffer_error(oa, ob, a, bb, va, vb) / den).mean(1, keepdim=True)
+                for oa, ob in zip(outs_a, outs_b, strict=True)
+            ],
+            1,
+        )
+
+    est = estimate(ca, cb, cva, cvb)
+    index = choose(est, args.radius)
+    means = torch.stack([(oa + ob) * 0.5 for oa, ob in zip(outs_a, outs_b, strict=True)], 1)
+    whole = int(est.mean((2, 3)).argmin(1))
+    return {
+        "halves-block": relmse(pick(outs, index)[0], ref),
+        "halves-raw-block": relmse(pick(outs, choose(estimate(*raw), args.radius))[0], ref),
+        "halves-mean-block": relmse(pick(means, index)[0], ref),
+        "halves-image": float(true[:, whole].mean()),
+    }
+
+
+def xbf_best(grids: dict[int, dict], b, spp: int, ref: Tensor) -> float | None:
+    """relMSE of the best fixed cross-bilateral filter of the training grid at ``spp``."""
+    if spp not in grids:
+        return None
+    res = denoise(b, "cross-bilateral", params=dict(grids[spp]), device="cpu")
+    return relmse(res.image, ref)
+
+
+def best_grid() -> dict[int, dict]:
+    """Per spp, the better of the one- and two-pass grids' best settings (as bench_kalantari)."""
+    best: dict[int, dict] = {}
+    err: dict[int, float] = {}
+    for path in GRIDS:
+        if not path.is_file():
+            continue
+        g = GridResult.from_dict(json.loads(path.read_text()))
+        for spp, e in g.best_error.items():
+            if e < err.get(spp, float("inf")):
+                best[spp], err[spp] = g.best[spp], e
+    return best
+
+
 def load_pair(path: Path, part: str | None, reference: Path) -> tuple[object, Tensor]:
     b = load_buffers(path, part=part)
     ref = torch.as_tensor(load_buffers(reference)["color"]).float()
@@ -137,6 +218,8 @@ def gaussian_check(model: KalantariModel, heldout: Path, image: str, s: float) -
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--heldout", type=Path, default=REPO / "data" / "generated" / "heldout")
+    ap.add_argument("--ref-dir", type=Path, default=None, help="read references from here")
+    ap.add_argument("--images", default="", help="comma-separated image names (default: all)")
     ap.add_argument("--model", default=SHIPPED, help="shipped, a model file or a run folder")
     ap.add_argument("--spp", default="4,16", help="spp levels, comma-separated")
     ap.add_argument("--radius", type=int, default=8, help="block radius R of the selection")
@@ -155,13 +238,19 @@ def main(argv: list[str] | None = None) -> int:
         gaussian_check(model, args.heldout, args.gaussian_check, args.shift)
         print()
     spps = {int(s) for s in args.spp.split(",")}
-    stored = json.loads(STORED.read_text())["images"] if STORED.is_file() else {}
+    grids = best_grid()
     rows: dict[str, dict[str, float]] = {}
-    keys = ("oracle-block", "oracle-image", "sure-block", "sure-image")
+    keys = ["oracle-block", "oracle-image", "sure-block", "sure-image"]
+    half_keys = ["halves-block", "halves-raw-block", "halves-mean-block", "halves-image"]
+    wanted = {i for i in args.images.split(",") if i}
     for e in scan_dataset(args.heldout):
-        if e.spp not in spps:
+        if e.spp not in spps or (wanted and e.image not in wanted):
             continue
-        b, ref = load_pair(e.path, e.part, e.reference)
+        reference = args.ref_dir / e.reference.name if args.ref_dir else e.reference
+        if not reference.is_file():
+            print(f"{e.image}: no reference {reference}, skipped")
+            continue
+        b, ref = load_pair(e.path, e.part, reference)
         if "albedo" not in b:  # as bench_kalantari: the shipped model needs it
             continue
         t0 = time.perf_counter()
@@ -181,36 +270,40 @@ def main(argv: list[str] | None = None) -> int:
             out, whole = select(outs, score, args.radius)
             row[f"{name}-block"] = relmse(out[0], ref)
             row[f"{name}-image"] = float(true[:, whole].mean())
-        best = stored.get(f"{e.image}@{e.spp}", {}).get("xbf-best")
+        if has_halves(b):
+            with torch.no_grad():
+                row.update(halves_rows(model, b, outs, true, pilot, ref, args))
+        best = xbf_best(grids, b, e.spp or 0, ref)
         if best:
             row["xbf-best"] = best
         rows[f"{e.image}@{e.spp}"] = row
         print(
             f"{e.image:<22}{e.spp:>4} spp  base {row['base']:.5f}  "
-            + "  ".join(f"{k} {row[k] / row['base']:.3f}" for k in keys)
+            + "  ".join(f"{k} {row[k] / row['base']:.3f}" for k in keys + half_keys if k in row)
             + f"  ({time.perf_counter() - t0:.1f} s)",
             flush=True,
         )
     print(
         f"\nrelMSE ratios, geometric mean over images (block radius {args.radius}, shift {args.shift}):"
     )
+    shown = keys + [k for k in half_keys if any(k in r for r in rows.values())]
     print(
         f"{'spp':>4}{'images':>8}"
-        + "".join(f"{k:>14}" for k in ("base", *keys))
+        + "".join(f"{k:>19}" for k in ("base", *shown))
         + "   (/ base; / xbf-best)"
     )
     for s in sorted(spps):
-        sel = [r for k, r in rows.items() if k.endswith(f"@{s}")]
-        line = f"{s:>4}{len(sel):>8}" + f"{'1':>14}"
-        line += "".join(f"{geometric_mean([r[k] / r['base'] for r in sel]):>14.3f}" for k in keys)
+        sel = [r for k, r in rows.items() if k.endswith(f"@{s}") and all(h in r for h in shown)]
+        line = f"{s:>4}{len(sel):>8}" + f"{'1':>19}"
+        line += "".join(f"{geometric_mean([r[k] / r['base'] for r in sel]):>19.3f}" for k in shown)
         withbest = [r for r in sel if "xbf-best" in r]
         if withbest:
             line += (
                 "\n"
                 + " " * 12
                 + "".join(
-                    f"{geometric_mean([r[k] / r['xbf-best'] for r in withbest]):>14.3f}"
-                    for k in ("base", *keys)
+                    f"{geometric_mean([r[k] / r['xbf-best'] for r in withbest]):>19.3f}"
+                    for k in ("base", *shown)
                 )
             )
         print(line)
