@@ -59,6 +59,7 @@ def test_an_experiment_on_the_oidn_set_measures_the_same_errors(oidn_set):
     tmp, render = oidn_set
     with pytest.MonkeyPatch.context() as mp:
         FakeMethods(mp).add("albedo-mean", albedo_mean, requires=("color", "albedo"))
+        mp.setattr("mcdenoise.experiments.plots.plots_unavailable", lambda: "not drawn here")
         spec = load_experiment(write_spec(tmp / "exp.toml", SPEC))
         run_experiment(spec, tmp / "out")
     data = json.loads((tmp / "out" / "results.json").read_text())

@@ -42,7 +42,11 @@ def rows(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.fixture
-def spec(tmp_path, fake_methods):
+def spec(tmp_path, fake_methods, monkeypatch):
+    # no figures: what is compared here is the data (and drawing them is most of a report's time)
+    monkeypatch.setattr(
+        "mcdenoise.experiments.plots.plots_unavailable", lambda: "not drawn in tests"
+    )
     fake_methods.add("box", blend)
     fake_methods.add("soft", blend, defaults={"strength": 0.5})
     make_render_folder(tmp_path / "rendered", scenes=("alpha", "beta"), size=(16, 16))
