@@ -130,3 +130,20 @@ def test_references_elsewhere_and_content_fingerprints(tmp_path):
     before = scenes[0].fingerprint
     mitsuba_aov(folder / "attic_spp2.exr", np.ones((3, 12, 16), np.float32))
     assert scan_folder(folder, references=tmp_path / "refs")[0].fingerprint != before
+
+
+def test_the_references_key_is_checked(tmp_path):
+    from mcdenoise.experiments.spec import parse_experiment
+
+    make_mitsuba_folder(tmp_path / "aov")
+    spec = parse_experiment(
+        {"scenes": {"folder": "aov", "references": "aov/ref"}}, source="s.toml", base=tmp_path
+    )
+    assert spec.references == (tmp_path / "aov" / "ref").resolve()
+    assert spec.to_dict()["scenes"]["references"] == str(spec.references)
+    with pytest.raises(ExperimentError, match=r"s\.toml: scenes\.references: 'nope' is not a"):
+        parse_experiment(
+            {"scenes": {"folder": "aov", "references": "nope"}}, source="s.toml", base=tmp_path
+        )
+    with pytest.raises(ExperimentError, match=r"goes with scenes\.folder"):
+        parse_experiment({"scenes": {"random": 1, "references": "aov"}}, source="s.toml")
