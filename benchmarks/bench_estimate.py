@@ -19,6 +19,23 @@ and how well the estimate matches the true error on held-out renders.
     estimate of the squared error of ``(D(A) + D(B))/2`` over trials, in standard errors, per
     filter; (b) the share of 16×16 blocks where the estimate picks the candidate the true
     error picks, and the share of candidate pairs per block it orders as the truth does.
+
+``python benchmarks/bench_estimate.py heldout [--data DIR] [--spp 4,16,64] [--methods ...]
+[--json OUT]``
+    The estimate against the truth on held-out renders with halves and references
+    (``data/generated/heldout-halves-3000``, ``data/recipes/heldout-halves.md``): per image,
+    level and method, the method on the full buffer (what ``mcdenoise denoise`` writes) and on
+    each half; the estimate (:func:`~mcdenoise.eval.estimate.estimate_from_outputs`, what
+    ``--estimate-error`` writes) against the true relMSE of the full output, and of the mean
+    of the filtered halves (which the estimate is unbiased for). The true relMSE is also
+    given with the reference's own noise removed (``(x − r)² − Var r``: the reference's
+    variance of the mean, from its ``color_var``), since a 4096-spp reference still adds
+    error that no reference-free estimate sees. Prints per level the share of (image,
+    method) pairs whose estimate is within a factor 1.5 of the truth, the mean over images
+    of Spearman's ρ between the estimated and the true ranking of the methods, and per
+    method the geometric mean of estimate / truth and of the full output's relMSE over the
+    halves-mean's (the carry-over). ``--json`` keeps every record (re-analyse with
+    ``--from-json``).
 """
 
 from __future__ import annotations
@@ -170,19 +187,23 @@ def synthetic_study(
     """Bias and ranking of the estimate on one noise model (see the module docstring)."""
     import torch
 
-    from mcdenoise.eval.estimate import block_means, cross_error
+    from mcdenoise.eval.estimate import block_means, cross_error, squared_error
 
     gen = torch.Generator().manual_seed(seed)
     mu = synthetic_truth(size)
     a, b, va, vb = synthetic_halves(mu, spp, noise, trials, gen)
     bias: dict[str, float] = {}
+    spread: dict[str, tuple[float, float]] = {}
     est_blocks, true_blocks = [], []
     for name, f in candidate_filters().items():
         da, db = f(a), f(b)
-        est = cross_error(da, db, a, b, va, vb)
+        est = squared_error(da, db, a, b)
         true = ((da + db) / 2 - mu).square()
         diff = (est - true).mean(dim=(1, 2, 3))  # per trial
         bias[name] = float(diff.mean() / (diff.std() / trials**0.5))
+        with_var = (cross_error(da, db, a, b, va, vb) - true).mean(dim=(1, 2, 3))
+        scale = float(true.mean())
+        spread[name] = (float(diff.std()) / scale, float(with_var.std()) / scale)
         est_blocks.append(torch.stack([block_means(e, block)[0] for e in est]))
         true_blocks.append(torch.stack([block_means(t, block)[0] for t in true]))
     est_b, true_b = torch.stack(est_blocks), torch.stack(true_blocks)  # (K, T, by, bx)
@@ -193,7 +214,13 @@ def synthetic_study(
         for j in range(i + 1, k):
             agree += float(((est_b[i] < est_b[j]) == (true_b[i] < true_b[j])).double().mean())
             pairs += 1
-    return {"noise": noise, "bias_in_se": bias, "argmin_agree": argmin, "pair_agree": agree / pairs}
+    return {
+        "noise": noise,
+        "bias_in_se": bias,
+        "spread": spread,
+        "argmin_agree": argmin,
+        "pair_agree": agree / pairs,
+    }
 
 
 def synthetic(args: argparse.Namespace) -> int:
@@ -202,11 +229,212 @@ def synthetic(args: argparse.Namespace) -> int:
             noise, trials=args.trials, size=args.size, spp=args.spp, block=args.block
         )
         biases = ", ".join(f"{k} {v:+.2f}" for k, v in r["bias_in_se"].items())
+        spreads = ", ".join(f"{k} {u:.3f}/{v:.3f}" for k, (u, v) in r["spread"].items())
+        print(
+            f"{noise:10s} spp {args.spp}: relative spread over trials (A-B)²/variance "
+            f"buffers: {spreads}"
+        )
         print(
             f"{noise:10s} spp {args.spp}: bias/SE {biases}; per {args.block}x{args.block} "
             f"block: best candidate agrees {r['argmin_agree']:.3f}, "
             f"pairs ordered alike {r['pair_agree']:.3f}"
         )
+    return 0
+
+
+# --- held-out renders ------------------------------------------------------------------------
+HELDOUT = ROOT / "data" / "generated" / "heldout-halves-3000"
+METHODS = ("noisy", "nlm", "cross-bilateral", "kalantari-xbf", "kpcn", "oidn")
+FACTOR = 1.5
+
+
+def _relmse_terms(out, ref, ref_var):
+    """(relMSE, relMSE with the reference's noise removed) of ``out`` against ``ref``."""
+    from mcdenoise.losses import RELMSE_EPS
+
+    den = ref.double().square() + RELMSE_EPS
+    sq = (out.double() - ref.double()).square()
+    raw = float((sq / den).mean())
+    corr = float(((sq - ref_var.double()) / den).mean()) if ref_var is not None else raw
+    return raw, corr
+
+
+def heldout_records(data: Path, spp: list[int], methods: list[str], done: dict) -> list[dict]:
+    """One record per (image, level, method); ``done`` holds records already measured
+    (keyed ``image/spp/method``), which are kept. Besides the estimate ``--estimate-error``
+    writes (``estimate``: relMSE normalised by the method's own output), ``estimate_shared``
+    normalises every method of an image by one pseudo-reference, the pixelwise median of the
+    denoisers' outputs (what a report over several methods can do), and ``estimate_oracle``
+    by the true reference (a diagnostic: what is left is the error of the squared-error
+    estimate itself)."""
+    import time
+
+    import torch
+
+    from mcdenoise.denoise import denoise
+    from mcdenoise.errors import McdenoiseError
+    from mcdenoise.eval.estimate import estimate_from_outputs, split_halves, squared_error
+    from mcdenoise.io import load_buffers
+    from mcdenoise.io.buffers import sanitize
+    from mcdenoise.losses import RELMSE_EPS
+    from mcdenoise.render.manifest import load_manifest
+
+    records = []
+    for img in load_manifest(data)["images"]:
+        ref_fb = load_buffers(data / img["files"]["reference"])
+        ref, ref_var = ref_fb["color"].double(), ref_fb.get("color_var")
+        for level in spp:
+            keys = [f"{img['id']}/{level}/{m}" for m in methods]
+            if all(k in done for k in keys):
+                records += [done[k] for k in keys]
+                continue
+            fb, _ = sanitize(load_buffers(data / img["files"]["noisy"], part=f"spp{level}"))
+            ha, hb = split_halves(fb)
+            a, b = fb["color_a"].double(), fb["color_b"].double()
+            outs: dict = {}
+            for method, key in zip(methods, keys):
+                t0 = time.perf_counter()
+                try:
+                    if method == "noisy":
+                        full, out_a, out_b = fb["color"], ha["color"], hb["color"]
+                    else:
+                        full = denoise(fb, method, device="cpu").image
+                        out_a = denoise(ha, method, device="cpu").image
+                        out_b = denoise(hb, method, device="cpu").image
+                except McdenoiseError as err:
+                    print(f"{key}: skipped: {' '.join(str(err).split())}", file=sys.stderr)
+                    continue
+                outs[method] = (full, out_a, out_b, time.perf_counter() - t0)
+            denoised = [o[0].double() for m, o in outs.items() if m != "noisy"]
+            shared = torch.stack(denoised).median(0).values if denoised else None
+            for method, (full, out_a, out_b, seconds) in outs.items():
+                est = estimate_from_outputs(out_a, out_b, fb, output=full)
+                est_mean = estimate_from_outputs(out_a, out_b, fb)
+                sq = squared_error(out_a.double(), out_b.double(), a, b)
+
+                def rel(d, sq=sq):
+                    return max(float((sq / (d.square() + RELMSE_EPS)).mean()), 0.0)
+
+                true, true_corr = _relmse_terms(full, ref, ref_var)
+                mean_true, mean_corr = _relmse_terms((out_a + out_b) / 2, ref, ref_var)
+                rec = {
+                    "image": img["id"], "spp": level, "method": method,
+                    "estimate": est.relmse, "estimate_se": est.relmse_se,
+                    "estimate_halves_mean": est_mean.relmse,
+                    "estimate_shared": rel(shared) if shared is not None else est.relmse,
+                    "estimate_oracle": rel(ref),
+                    "true": true, "true_corrected": true_corr,
+                    "halves_mean_true": mean_true, "halves_mean_corrected": mean_corr,
+                    "seconds": round(seconds, 3),
+                }  # fmt: skip
+                records.append(rec)
+                done[f"{img['id']}/{level}/{method}"] = rec
+                print(
+                    f"{img['id']}/{level}/{method}: estimate {est.relmse:.4g} "
+                    f"± {est.relmse_se:.2g} (shared {rec['estimate_shared']:.4g}, oracle "
+                    f"{rec['estimate_oracle']:.4g}), true {true:.4g} (corrected {true_corr:.4g})",
+                    file=sys.stderr,
+                )
+    return records
+
+
+def _spearman(x: list[float], y: list[float]) -> float:
+    import numpy as np
+    from scipy.stats import spearmanr
+
+    if len(x) < 2:
+        return float("nan")
+    return float(spearmanr(np.asarray(x), np.asarray(y)).statistic)
+
+
+def analyse(records: list[dict], truth: str = "true_corrected", estimate: str = "estimate") -> dict:
+    """Per level: the share within :data:`FACTOR`, mean Spearman ρ over images; per method:
+    geometric means of estimate/truth and of the carry-over."""
+    import math
+    from collections import defaultdict
+
+    out: dict = {"truth": truth, "estimate": estimate, "levels": {}, "methods": {}}
+    by_level: dict = defaultdict(list)
+    for r in records:
+        by_level[r["spp"]].append(r)
+    for level, rs in sorted(by_level.items()):
+        ok = [
+            r[truth] > 0 and r[estimate] > 0 and 1 / FACTOR <= r[estimate] / r[truth] <= FACTOR
+            for r in rs
+        ]
+        per_image: dict = defaultdict(list)
+        for r in rs:
+            per_image[r["image"]].append(r)
+        rhos = [
+            _spearman([r[estimate] for r in v], [r[truth] for r in v])
+            for v in per_image.values()
+            if len(v) > 2
+        ]
+        rhos = [x for x in rhos if not math.isnan(x)]
+        out["levels"][level] = {
+            "pairs": len(rs),
+            "within_factor": sum(ok) / len(ok),
+            "spearman_mean": sum(rhos) / len(rhos) if rhos else float("nan"),
+            "images": len(rhos),
+        }
+    by_method: dict = defaultdict(list)
+    for r in records:
+        by_method[(r["method"], r["spp"])].append(r)
+    for (method, level), rs in sorted(by_method.items()):
+        pos = [r for r in rs if r[truth] > 0 and r[estimate] > 0]
+        gm = lambda v: math.exp(sum(math.log(x) for x in v) / len(v)) if v else float("nan")  # noqa: E731
+        out["methods"][f"{method}@{level}"] = {
+            "estimate_over_truth": gm([r[estimate] / r[truth] for r in pos]),
+            "full_over_halves_mean": gm(
+                [
+                    r["true_corrected"] / r["halves_mean_corrected"]
+                    for r in rs
+                    if r["true_corrected"] > 0 and r["halves_mean_corrected"] > 0
+                ]
+            ),
+        }
+    return out
+
+
+def _print_analysis(a: dict) -> None:
+    print(f"estimate '{a['estimate']}' against truth '{a['truth']}':")
+    for level, v in a["levels"].items():
+        print(
+            f"  {level:>3} spp: within {FACTOR}x {v['within_factor']:.3f} of {v['pairs']} pairs; "
+            f"Spearman rho {v['spearman_mean']:.3f} (mean of {v['images']} images)"
+        )
+    for k, v in a["methods"].items():
+        print(
+            f"    {k:22s} estimate/truth {v['estimate_over_truth']:.3f}  "
+            f"full/halves-mean {v['full_over_halves_mean']:.3f}"
+        )
+
+
+def heldout(args: argparse.Namespace) -> int:
+    import json
+
+    done: dict = {}
+    if args.from_json:
+        records = json.loads(Path(args.from_json).read_text())["records"]
+    else:
+        if args.json and Path(args.json).exists():
+            for r in json.loads(Path(args.json).read_text())["records"]:
+                done[f"{r['image']}/{r['spp']}/{r['method']}"] = r
+        import torch
+
+        torch.set_num_threads(args.threads)
+        spp = [int(v) for v in args.spp.split(",")]
+        records = heldout_records(Path(args.data), spp, args.methods.split(","), done)
+        if args.json:
+            Path(args.json).write_text(json.dumps({"records": records}, indent=1))
+    for truth, est in (
+        ("true_corrected", "estimate"),
+        ("true", "estimate"),
+        ("true_corrected", "estimate_shared"),
+        ("true_corrected", "estimate_oracle"),
+        ("halves_mean_corrected", "estimate_halves_mean"),
+    ):
+        _print_analysis(analyse(records, truth, est))
     return 0
 
 
@@ -227,8 +455,16 @@ def main(argv: list[str] | None = None) -> int:
     sy.add_argument("--size", type=int, default=128)
     sy.add_argument("--spp", type=int, default=8)
     sy.add_argument("--block", type=int, default=16)
+    ho = sub.add_parser("heldout", help="estimate vs truth on held-out renders with halves")
+    ho.add_argument("--data", default=str(HELDOUT))
+    ho.add_argument("--spp", default="4,16,64")
+    ho.add_argument("--methods", default=",".join(METHODS))
+    ho.add_argument("--threads", type=int, default=1)
+    ho.add_argument("--json", default=None, help="write (and resume from) every record here")
+    ho.add_argument("--from-json", default=None, help="only analyse the records of this file")
     args = ap.parse_args(argv)
-    return {"render-cost": render_cost, "synthetic": synthetic}[args.cmd](args)
+    cmds = {"render-cost": render_cost, "synthetic": synthetic, "heldout": heldout}
+    return cmds[args.cmd](args)
 
 
 if __name__ == "__main__":

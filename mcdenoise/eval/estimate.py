@@ -32,7 +32,14 @@ What the user gets, and the estimate of it
 
         ê = ½[(D_A − B)² − v_B + (D_B − A)² − v_A] − ¼(D_A − D_B)²
 
-    is unbiased for the squared error of ``D̄`` with no other assumption. The output most users
+    is unbiased for the squared error of ``D̄`` with no other assumption. The variance term
+    ``½(Var A + Var B)`` need not come from the variance buffers: ``E[(A − B)²] = Var A +
+    Var B`` for any two independent unbiased halves, so :func:`squared_error` subtracts
+    ``½(A − B)²`` instead, which needs no variance estimate at all and is the more precise of
+    the two (``python benchmarks/bench_estimate.py synthetic`` prints both: the spread of the
+    image-level estimate over trials is lower by up to a half on the identity and by 10-40 %
+    on the blurs under heavy tails, docs/results/estimate.md). For the identity (the noisy
+    input itself) it is ``¼(A − B)²``, whose mean is ``Var x`` exactly. The output most users
     keep is ``D`` on the full buffer, ``D(x)``, ``x = (A + B)/2``. Writing
     ``MSE = bias² + variance``: ``ê`` estimates ``β² + Var(D_A)/2`` (the bias of a half-sample
     filter and its variance halved), which is ``MSE(D(x))`` where the filter's bias does not
@@ -98,9 +105,11 @@ def split_halves(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffer
     check_halves(buffers)
     if not has_halves(buffers):
         where = f"{buffers.source}: " if buffers.source else ""
+        odd = f" (this level has {buffers.spp} spp: halves exist at even levels only)"
         raise InputError(
             f"{where}no half buffers (color_a, color_b): the error can only be estimated on a "
             "render with halves (mcdenoise render --halves)"
+            + (odd if buffers.spp is not None and buffers.spp % 2 else "")
         )
     base = {n: t for n, t in buffers.buffers.items() if n not in _ALL_HALVES}
     out = []
@@ -152,6 +161,13 @@ def cross_error(
     if var_a is not None and var_b is not None:
         e = e - 0.5 * (var_a + var_b)
     return e
+
+
+def squared_error(out_a: Tensor, out_b: Tensor, color_a: Tensor, color_b: Tensor) -> Tensor:
+    """Per-pixel unbiased estimate of the squared error of ``(out_a + out_b) / 2`` that needs
+    no variance buffer: :func:`cross_error` with ``½(A − B)²`` as the estimate of the common
+    term ``½(Var A + Var B)`` (module docstring). What :func:`estimate_from_outputs` uses."""
+    return cross_error(out_a, out_b, color_a, color_b) - 0.5 * (color_a - color_b).square()
 
 
 def relative(squared_error: Tensor, judged: Tensor, eps: float = RELMSE_EPS) -> Tensor:
@@ -225,13 +241,8 @@ def estimate_from_outputs(
     if not has_halves(buffers):
         raise InputError("estimate_from_outputs: the buffers have no color_a/color_b")
     a, b = buffers["color_a"], buffers["color_b"]
-    va, vb = buffers.get("color_a_var"), buffers.get("color_b_var")
-    if va is None or vb is None:
-        raise InputError("the error estimate needs the halves' variances color_a_var, color_b_var")
     out_a, out_b = out_a.to(a), out_b.to(a)
-    sq = cross_error(
-        out_a.double(), out_b.double(), a.double(), b.double(), va.double(), vb.double()
-    )
+    sq = squared_error(out_a.double(), out_b.double(), a.double(), b.double())
     judged_img = (out_a + out_b) / 2 if output is None else output.to(a)
     rel = relative(sq, judged_img.double(), eps).mean(0)
     means, counts = block_means(rel, block)

@@ -24,6 +24,7 @@ from mcdenoise.eval.estimate import (
     estimate_from_outputs,
     half_error,
     split_halves,
+    squared_error,
 )
 from mcdenoise.io import FeatureBuffers
 
@@ -46,8 +47,9 @@ def test_unbiased_and_ranks_blocks_like_the_truth(bench, noise) -> None:
     r = bench.synthetic_study(noise, trials=32, size=48, spp=8, block=16, seed=1)
     for name, z in r["bias_in_se"].items():
         assert abs(z) < 4, (noise, name, z)
-    assert r["argmin_agree"] > 0.5, r
-    assert r["pair_agree"] > 0.75, r
+    # 5 candidates: a random pick agrees in 20 % of the blocks and orders half of the pairs
+    assert r["argmin_agree"] > 0.45, r
+    assert r["pair_agree"] > 0.8, r
 
 
 def test_the_bias_check_catches_a_wrong_construction(bench) -> None:
@@ -72,6 +74,7 @@ def test_identity_estimates_the_variance_of_the_noisy_mean() -> None:
     va, vb = torch.rand(3, 4, 5, generator=g), torch.rand(3, 4, 5, generator=g)
     e = cross_error(a, b, a, b, va, vb)
     torch.testing.assert_close(e, 0.75 * (a - b) ** 2 - 0.5 * (va + vb))
+    torch.testing.assert_close(squared_error(a, b, a, b), 0.25 * (a - b) ** 2)
     # Differences between candidates do not need the variances.
     c = cross_error(a * 0.5, b * 0.5, a, b) - cross_error(a, b, a, b)
     torch.testing.assert_close(c, cross_error(a * 0.5, b * 0.5, a, b, va, vb) - e)
@@ -139,7 +142,7 @@ def test_estimate_error_runs_the_denoiser_on_each_half() -> None:
     db = fb["color_b"] * 0 + fb["color_b"].mean()
     again = estimate_from_outputs(da, db, fb, block=8)
     assert est.relmse == pytest.approx(again.relmse) and est.relmse_se > 0
-    sq = cross_error(da, db, fb["color_a"], fb["color_b"], fb["color_a_var"], fb["color_b_var"])
+    sq = squared_error(da, db, fb["color_a"], fb["color_b"])
     rel = (sq / (((da + db) / 2) ** 2 + 0.01)).mean()
     assert est.relmse == pytest.approx(max(float(rel), 0.0), rel=1e-5)
     full = estimate_from_outputs(da, db, fb, output=fb["color"], block=8)
