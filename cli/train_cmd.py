@@ -13,7 +13,8 @@ from mcdenoise_cli.options import threads_option
     "model",
     default=None,
     metavar="NAME",
-    help="Model to train: kpcn, kalantari-xbf or kalantari-nlm (default: the config file's, "
+    help="Model to train: kpcn, kpcn-temporal, kalantari-xbf or kalantari-nlm (default: the "
+    "config file's, "
     "else kalantari-xbf).",
 )
 @click.option(
@@ -60,7 +61,8 @@ from mcdenoise_cli.options import threads_option
     "base",
     default=None,
     metavar="RUN",
-    help="kpcn: run folder or model file to start from: --finetune-encoder keeps its trunk "
+    help="kpcn, kpcn-temporal: run folder or model file to start from (kpcn-temporal: a kpcn "
+    "model, or a kpcn-temporal run to continue): --finetune-encoder keeps its trunk "
     "frozen; alone, the whole model trains further with this run's schedule.",
 )
 @click.option(

@@ -146,6 +146,24 @@ LOSSES: dict[str, LossFn] = {
 }
 
 
+def temporal_smape(
+    output: Tensor,
+    previous: Tensor,
+    reference: Tensor,
+    previous_reference: Tensor,
+    mask: Tensor | None = None,
+) -> Tensor:
+    """SMAPE of the output's frame difference against the reference's (scalar).
+
+    ``smape(o_t - o_{t-1}, r_t - r_{t-1})`` over the masked pixels: the temporal term of
+    Isik et al. 2021 / Balint et al. 2023 (their "temporal SMAPE" on consecutive frames;
+    the previous frames are on frame ``t``'s grid, i.e. warped there by the caller, and
+    ``mask`` holds 0 where that warp is invalid). Flicker (an output difference the
+    reference does not have) costs up to 1 per element, like SMAPE itself.
+    """
+    return smape(output - previous, reference - previous_reference, mask)
+
+
 def compute_loss(
     name: str,
     output: Tensor,
@@ -179,4 +197,5 @@ __all__ = [
     "smape",
     "smape_map",
     "smape_relmse",
+    "temporal_smape",
 ]

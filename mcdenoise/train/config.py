@@ -134,6 +134,12 @@ class TrainConfig:
             :mod:`mcdenoise.models.features`).
         checkpoints_kept: how many checkpoints to keep in ``checkpoints/`` (the newest ones).
         device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``.
+        window: kpcn-temporal: frames per window (odd for ``offline``).
+        temporal_mode: kpcn-temporal: ``offline`` (past and future frames) or ``causal``.
+        temporal_weight: kpcn-temporal: weight of the temporal SMAPE term
+            (:func:`mcdenoise.losses.temporal_smape`) added to ``loss``.
+        trunk: kpcn-temporal: ``frozen`` (train the temporal module only, the paper's first
+            stage) or ``train`` (fine-tune everything).
     """
 
     model: str = "kalantari-xbf"
@@ -176,6 +182,10 @@ class TrainConfig:
     regional: bool = False
     checkpoints_kept: int = 3
     device: str = "cpu"
+    window: int = 5
+    temporal_mode: str = "offline"
+    temporal_weight: float = 0.5
+    trunk: str = "frozen"
 
     def __post_init__(self) -> None:
         if not self.loss:
@@ -202,6 +212,19 @@ class TrainConfig:
                 f"kernel must be 0 (default) or an odd size >= 3, got {self.kernel}",
             ),
             (self.passes in (1, 2), f"passes must be 1 or 2, got {self.passes}"),
+            (self.window >= 1, f"window must be >= 1, got {self.window}"),
+            (
+                self.temporal_mode in ("offline", "causal"),
+                f"temporal_mode must be offline or causal, got {self.temporal_mode!r}",
+            ),
+            (
+                self.temporal_weight >= 0,
+                f"temporal_weight must be >= 0, got {self.temporal_weight}",
+            ),
+            (
+                self.trunk in ("frozen", "train"),
+                f"trunk must be frozen or train, got {self.trunk!r}",
+            ),
             (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}"),
             (self.asym_slope >= 1, f"asym_slope must be >= 1, got {self.asym_slope}"),
             (
@@ -232,7 +255,7 @@ class TrainConfig:
                 "regional (the regional feature means) is for kalantari models only",
             ),
             (
-                not self.base or self.model == "kpcn",
+                not self.base or self.model in ("kpcn", "kpcn-temporal"),
                 f"base (--from) is for kpcn models only, not {self.model}",
             ),
         ]

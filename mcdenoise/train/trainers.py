@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.errors import InputError
-from mcdenoise.train import kalantari, kpcn
+from mcdenoise.train import kalantari, kpcn, kpcn_temporal
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig, load_config
 from mcdenoise.train.dataset import LoadReport
@@ -52,6 +52,10 @@ def _train_kalantari(cfg: TrainConfig, out: str | Path, **kwargs: Any):
 
 def _train_kpcn(cfg: TrainConfig, out: str | Path, **kwargs: Any):
     return kpcn.train_kpcn(cfg, out, **kwargs)
+
+
+def _train_kpcn_temporal(cfg: TrainConfig, out: str | Path, **kwargs: Any):
+    return kpcn_temporal.train_kpcn_temporal(cfg, out, **kwargs)
 
 
 _KALANTARI_KEYS = frozenset({"hidden", "passes", "regional", "guides"})
@@ -93,6 +97,13 @@ TRAINERS: tuple[Trainer, ...] = (
         "Vogels 2018)",
         _train_kpcn,
         _KPCN_KEYS,
+    ),
+    Trainer(
+        "kpcn-temporal",
+        "temporal kernel predictor over motion-warped windows around a trained kpcn "
+        "(Vogels 2018); --from a kpcn model",
+        _train_kpcn_temporal,
+        frozenset({"window", "temporal_mode", "temporal_weight", "trunk", "base", "augment"}),
     ),
 )
 

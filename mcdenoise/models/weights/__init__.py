@@ -2,7 +2,8 @@
 
 ``kalantari-xbf.pt`` (245 scenes), ``kalantari-nlm.pt`` and ``kalantari-xbf-noalbedo.pt``
 (the first 120 of them) were trained by the commands in ``data/recipes/kalantari.md`` on
-``mcdenoise render`` data (seed 1000) that no reported evaluation uses. :func:`load_kalantari` accepts a model file or a run folder (its
+``mcdenoise render`` data (seed 1000) that no reported evaluation uses. ``kpcn-temporal.pt``
+(the temporal kpcn around ``kpcn.pt``): ``data/recipes/kpcn-temporal.md``. :func:`load_kalantari` accepts a model file or a run folder (its
 ``model.pt``) and caches the loaded model per file and modification time.
 """
 
@@ -17,6 +18,8 @@ from mcdenoise.modelfile import CheckpointError, model_file, read_card
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.kpcn import FORMAT as KPCN_FORMAT
 from mcdenoise.models.kpcn import KpcnModel
+from mcdenoise.models.temporal import FORMAT as TEMPORAL_FORMAT
+from mcdenoise.models.temporal import TemporalKpcn
 
 WEIGHTS = Path(__file__).resolve().parent
 #: ``model`` parameter value of the learned methods meaning "the weights shipped here".
@@ -69,7 +72,9 @@ def weights_digest(method: str, model: str) -> str:
 
 
 @functools.lru_cache(maxsize=8)
-def _load(path: str, mtime_ns: int, kind: str) -> KalantariModel | KpcnModel:
+def _load(path: str, mtime_ns: int, kind: str) -> KalantariModel | KpcnModel | TemporalKpcn:
+    if kind == "kpcn-temporal":
+        return TemporalKpcn.load(path)
     return KpcnModel.load(path) if kind == "kpcn" else KalantariModel.load(path)
 
 
@@ -90,9 +95,19 @@ def load_kpcn(path: str | os.PathLike[str]) -> KpcnModel:
     return _load(str(p.resolve()), p.stat().st_mtime_ns, "kpcn")  # type: ignore[return-value]
 
 
+def load_kpcn_temporal(path: str | os.PathLike[str]) -> TemporalKpcn:
+    """The temporal kpcn model in ``path`` (a model file or a run folder), cached (same
+    errors as :func:`load_kalantari`)."""
+    p = model_file(path)
+    return _load(str(p.resolve()), p.stat().st_mtime_ns, "kpcn-temporal")  # type: ignore[return-value]
+
+
 def model_method(path: str | os.PathLike[str]) -> str:
-    """The method a model file belongs to: ``kpcn``, ``kalantari-xbf`` or ``kalantari-nlm``."""
+    """The method a model file belongs to: ``kpcn``, ``kpcn-temporal``, ``kalantari-xbf`` or
+    ``kalantari-nlm``."""
     card = read_card(path)
     if card.get("format") == KPCN_FORMAT:
         return "kpcn"
+    if card.get("format") == TEMPORAL_FORMAT:
+        return "kpcn-temporal"
     return f"kalantari-{card.get('kind', 'xbf')}"

@@ -1,0 +1,498 @@
+"""Temporal kernel-predicting CNN (Vogels et al. 2018, "Denoising with Kernel Prediction and
+Asymmetric Loss Functions", section 5: the temporal extension of their KPCN).
+
+A window of frames around frame ``t`` (``offline``: past and future, e.g. ``t-2 … t+2``;
+``causal``: past only, ``t-N+1 … t``) is denoised into frame ``t``::
+
+    frames t+o, each warped to frame t along the motion vectors (bilinear, invalid pixels
+      masked; mcdenoise.filters.warp, done by the caller: mcdenoise.methods.kpcn_temporal)
+      --single-frame kpcn source encoder + U-Net trunk (shared weights, one batched call)-->
+      per frame i and scale s: features f_i^s
+      --temporal module per scale (below)--> per frame i a k×k kernel's logits
+      --ONE softmax over all k² taps of all N frames (taps on invalid pixels: weight 0)-->
+      kernels applied to the warped, demodulated frames and summed
+      --Vogels' scale compositor, coarse to fine--> × (albedo_t + 0.01) --> frame t
+
+The logits of frame ``i`` are the single-frame model's own head on that frame's features plus
+a correction from the temporal module: ``L_i = head_s(f_i) + Δ_i``. The temporal module
+(:class:`TemporalMixer`, one per scale) sees per frame ``[f_i, f_i − f_t, mask_i, is_centre]``,
+two 3×3 convolutions give ``h_i``, a mask-weighted mean over the window gives a context ``h̄``,
+and a 1×1 convolution of ``[h_i, h̄]`` gives ``Δ_i`` (and, from ``h̄``, a correction of the
+compositor's blend logit); the centre frame's taps get a learned bias (start
+:data:`CENTRE_BIAS`). The last layers start at zero, so before training the model is a
+weighted mean of the single-frame kpcn's kernels of the valid frames (each frame's logits are
+first normalised on their own, :func:`frame_log_softmax`), most of the weight on frame ``t``:
+a motion-compensated, mask-aware blend that the temporal module then learns to reweight
+(Vogels: the kernels of all frames are normalised jointly). Training starts
+from the shipped single-frame model with the trunk frozen (:mod:`mcdenoise.train.kpcn_temporal`).
+
+Masks: the centre frame is valid everywhere. At the coarser scales a pixel is valid only when
+all four pixels below it are (min-pooling), so a kernel never reads a value that averages an
+invalid pixel in. A tap is read only where its frame's mask is 1 at the tapped pixel (and the
+pixel lies in the image): the logits of all other taps are set to −∞ before the softmax, and
+the warped frames hold 0 there (never NaN), so no invalid value can reach the output or its
+gradient.
+
+A window of one frame is exactly the single-frame model (:meth:`TemporalKpcn.run` runs
+:meth:`KpcnModel.run`: with one frame the joint softmax is kpcn's in-image softmax and the
+temporal module has nothing to combine).
+
+Model file (``torch.save`` of a dict): ``{"card": {format, base (the kpcn card), window,
+mode, hidden, training}, "state": state_dict}``; the base's weights live under ``base.``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from mcdenoise.errors import InputError
+from mcdenoise.filters.albedo import demodulate
+from mcdenoise.modelfile import load_weights, read_model_file, save_model
+from mcdenoise.models.kpcn import KpcnCard, KpcnModel
+from mcdenoise.models.multiscale import (
+    LOGIT_LIMIT,
+    apply_head,
+    composite,
+    downsample,
+    head_logits,
+)
+
+#: Version of the model file layout.
+FORMAT = "mcdenoise.kpcn-temporal/1"
+#: ``offline``: past and future frames (odd window centred on t); ``causal``: past frames only.
+MODES = ("offline", "causal")
+#: Default inference tile edge (pixels).
+TILE = 512
+#: Initial logit bias of the centre frame's taps: with 5 frames its kernel starts with
+#: e² / (e² + 4) = 65 % of the weight, each other frame 9 %. Equal weights (0) made the
+#: untrained model 3.5× worse than the single-frame one on validation sequences (a firefly of
+#: a neighbour frame, blurred by the warp, is no longer recognised as one by that frame's own
+#: kernel); starting near the single-frame model, training adds the neighbours where they help.
+CENTRE_BIAS = 2.0
+
+
+def window_offsets(window: int, mode: str) -> list[int]:
+    """Frame offsets of a window, oldest first.
+
+    >>> window_offsets(5, "offline"), window_offsets(3, "causal")
+    ([-2, -1, 0, 1, 2], [-2, -1, 0])
+    """
+    if mode not in MODES:
+        raise InputError(f"temporal mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if window < 1 or (mode == "offline" and window % 2 == 0):
+        raise InputError(f"window must be >= 1 (odd for the offline mode), got {window} ({mode})")
+    if mode == "causal":
+        return list(range(-(window - 1), 1))
+    r = window // 2
+    return list(range(-r, r + 1))
+
+
+@dataclass
+class TemporalCard:
+    """Everything needed to rebuild the temporal model (JSON-able).
+
+    Attributes:
+        base: the single-frame kpcn's card (:meth:`KpcnCard.to_dict`).
+        window: frames per window (3, 5 …).
+        mode: ``offline`` or ``causal`` (:data:`MODES`).
+        hidden: width of the temporal module per kernel scale.
+        training: free-form description of the training run.
+    """
+
+    base: dict[str, Any]
+    window: int = 5
+    mode: str = "offline"
+    hidden: list[int] = field(default_factory=lambda: [16, 24, 32])
+    training: dict[str, Any] = field(default_factory=dict)
+    format: str = FORMAT
+
+    def check(self, what: str = "model") -> KpcnCard:
+        base = KpcnCard.from_dict(self.base, what)
+        window_offsets(self.window, self.mode)
+        if len(self.hidden) != base.scales or min(self.hidden) < 1:
+            raise InputError(
+                f"{what}: hidden must give one width per kernel scale ({base.scales}), "
+                f"got {self.hidden}"
+            )
+        return base
+
+    @property
+    def offsets(self) -> list[int]:
+        return window_offsets(self.window, self.mode)
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    @staticmethod
+    def from_dict(d: Mapping[str, Any], what: str = "model file") -> TemporalCard:
+        if d.get("format") != FORMAT:
+            raise InputError(f"{what}: format {d.get('format')!r} is not {FORMAT!r}")
+        try:
+            card = TemporalCard(
+                base=dict(d["base"]),
+                window=int(d["window"]),
+                mode=str(d["mode"]),
+                hidden=[int(h) for h in d["hidden"]],
+                training=dict(d.get("training", {})),
+            )
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"{what}: incomplete model card ({err})") from None
+        card.check(what)
+        return card
+
+
+# --- the joint kernels ------------------------------------------------------------------------
+def tap_valid(mask: Tensor, kernel: int) -> Tensor:
+    """``(B, k², H, W)`` bool: tap ``(dy, dx)`` of pixel ``p`` reads a valid pixel
+    (``mask(p + (dy, dx)) > 0.5`` and inside the image); channel order of ``F.unfold``."""
+    b, _, h, w = mask.shape
+    taps = F.unfold(mask.to(torch.float32), kernel, padding=kernel // 2)
+    return (taps > 0.5).view(b, kernel * kernel, h, w)
+
+
+def joint_kernel_softmax(logits: Sequence[Tensor], valid: Sequence[Tensor]) -> list[Tensor]:
+    """One softmax over all taps of all frames: ``N`` logits ``(B, k², H, W)`` -> ``N`` weights.
+
+    Taps whose ``valid`` ``(B, k², H, W)`` (:func:`tap_valid`) is False get weight exactly 0;
+    NaN logits count as 0 and ±Inf / huge values are clamped to ±:data:`LOGIT_LIMIT` (the
+    maximum is subtracted before ``exp``), so the weights are finite, non-negative and sum to
+    1 over the window wherever one tap is valid (the centre frame's centre tap always is).
+    Computed in float32 (float64 kept for gradcheck), autocast off.
+    """
+    n = len(logits)
+    with torch.autocast(logits[0].device.type, enabled=False):
+        z = torch.stack(list(logits), dim=1)
+        z = z if z.dtype in (torch.float32, torch.float64) else z.float()
+        z = torch.nan_to_num(z, nan=0.0, posinf=LOGIT_LIMIT, neginf=-LOGIT_LIMIT)
+        ok = torch.stack(list(valid), dim=1)
+        z = torch.where(ok, z, torch.full((), -math.inf, dtype=z.dtype, device=z.device))
+        b, _, kk, h, w = z.shape
+        wts = torch.softmax(z.reshape(b, n * kk, h, w), dim=1)
+        wts = torch.nan_to_num(wts, nan=0.0)  # a pixel with no valid tap at all: weight 0
+        return list(wts.view(b, n, kk, h, w).unbind(1))
+
+
+def frame_log_softmax(logits: Tensor, valid: Tensor) -> Tensor:
+    """Log of one frame's own kernel weights: ``logits`` minus their log-sum-exp over the
+    frame's valid taps (NaN -> 0, ±Inf clamped as in :func:`joint_kernel_softmax`).
+
+    The single-frame head's logits carry an arbitrary per-pixel offset (a softmax ignores it),
+    so two frames' raw logits cannot be compared: a joint softmax of raw logits would follow
+    whichever frame's offset happens to be larger (measured: 18× the single-frame relMSE on a
+    training sequence before training). Normalised per frame first, a joint softmax of these
+    gives every frame the same total weight (the mean of the per-frame kernels over the valid
+    frames), which the temporal module's corrections then reweight.
+    """
+    z = logits if logits.dtype in (torch.float32, torch.float64) else logits.float()
+    z = torch.nan_to_num(z, nan=0.0, posinf=LOGIT_LIMIT, neginf=-LOGIT_LIMIT)
+    masked = torch.where(valid, z, torch.full((), -LOGIT_LIMIT, dtype=z.dtype, device=z.device))
+    return z - torch.logsumexp(masked, dim=1, keepdim=True)
+
+
+def apply_joint(images: Sequence[Tensor], weights: Sequence[Tensor]) -> Tensor:
+    """``Σ_i Σ_taps w_i · image_i(p + tap)``: per-pixel kernels of every frame applied to that
+    frame and summed. ``images`` ``(B, C, H, W)``, ``weights`` ``(B, k², H, W)`` (taps in
+    ``F.unfold`` order); out-of-image taps read 0 (their weight is 0 by construction)."""
+    kk = weights[0].shape[1]
+    k = round(kk**0.5)
+    r = k // 2
+    h, w = images[0].shape[-2:]
+    out = torch.zeros_like(images[0])
+    for img, wt in zip(images, weights):
+        padded = F.pad(img, (r, r, r, r))
+        for dy in range(k):
+            for dx in range(k):
+                tap = dy * k + dx
+                out = out + wt[:, tap : tap + 1] * padded[..., dy : dy + h, dx : dx + w]
+    return out
+
+
+def min_pool(mask: Tensor) -> Tensor:
+    """2×2 min-pooling: a coarse pixel is valid when all four below it are."""
+    return -F.max_pool2d(-mask, 2)
+
+
+# --- the temporal module -----------------------------------------------------------------------
+class TemporalMixer(nn.Module):
+    """Per-scale temporal module: per-frame logit corrections ``Δ_i`` and a context (see the
+    module docstring). ``out`` and ``alpha`` start at zero."""
+
+    def __init__(self, channels: int, hidden: int, kernel: int) -> None:
+        super().__init__()
+        self.frame = nn.Sequential(
+            nn.Conv2d(2 * channels + 2, hidden, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(hidden, hidden, 3, padding=1),
+            nn.ReLU(inplace=True),
+        )
+        self.out = nn.Conv2d(2 * hidden, kernel * kernel, 1)
+        self.alpha = nn.Conv2d(hidden, 1, 1)
+        for conv in (self.out, self.alpha):
+            nn.init.zeros_(conv.weight)
+            nn.init.zeros_(conv.bias)
+        #: Logit added to every tap of the centre frame (:data:`CENTRE_BIAS` at the start).
+        self.centre_bias = nn.Parameter(torch.tensor(CENTRE_BIAS))
+
+    def forward(
+        self, feats: Sequence[Tensor], masks: Sequence[Tensor], centre: int
+    ) -> tuple[list[Tensor], Tensor]:
+        """``(Δ logits per frame, compositor logit correction (B, 1, h, w))``."""
+        fc = feats[centre]
+        n, b = len(feats), fc.shape[0]
+        x = torch.cat(
+            [
+                torch.cat(
+                    [
+                        f,
+                        f - fc,
+                        m.to(f.dtype),
+                        torch.full_like(m, float(i == centre), dtype=f.dtype),
+                    ],
+                    dim=1,
+                )
+                for i, (f, m) in enumerate(zip(feats, masks))
+            ],
+            dim=0,
+        )
+        hid = self.frame(x).view(n, b, -1, *fc.shape[-2:])
+        m = torch.stack([mm.to(hid.dtype) for mm in masks])  # (N, B, 1, h, w)
+        ctx = (hid * m).sum(0) / m.sum(0).clamp_min(1.0)
+        deltas = [
+            self.out(torch.cat([hid[i], ctx], dim=1)) + (self.centre_bias if i == centre else 0.0)
+            for i in range(n)
+        ]
+        return deltas, self.alpha(ctx)
+
+
+class TemporalKpcn(nn.Module):
+    """The temporal model; ``base`` is a :class:`KpcnModel` (the shared trunk and heads)."""
+
+    def __init__(self, card: TemporalCard) -> None:
+        super().__init__()
+        base_card = card.check()
+        self.card = card
+        self.base = KpcnModel(base_card)
+        ch, k = base_card.channels, base_card.kernel
+        self.mixers = nn.ModuleList(
+            TemporalMixer(ch[s], card.hidden[s], k) for s in range(base_card.scales)
+        )
+
+    @property
+    def centre(self) -> int:
+        """Index of frame ``t`` in a full window."""
+        return self.card.offsets.index(0)
+
+    @property
+    def multiple(self) -> int:
+        return self.base.multiple
+
+    @property
+    def halo(self) -> int:
+        """The trunk's halo plus the temporal module's two 3×3 convolutions per scale."""
+        m = self.multiple
+        extra = 2 * 2 ** (self.base.card.scales - 1) + m
+        return -(-(self.base.halo + extra) // m) * m
+
+    def trunk_parameters(self) -> list[nn.Parameter]:
+        return list(self.base.parameters())
+
+    def temporal_parameters(self) -> list[nn.Parameter]:
+        return list(self.mixers.parameters())
+
+    # --- network -------------------------------------------------------------------------
+    def run(
+        self,
+        frames: Sequence[Mapping[str, Tensor]],
+        masks: Sequence[Tensor],
+        centre: int,
+        source: str,
+        *,
+        trunk_grad: bool = True,
+        features: Sequence[Sequence[Tensor]] | None = None,
+    ) -> Tensor:
+        """Denoise frame ``centre`` of a window of prepared tensors ``(B, C, H, W)``.
+
+        Args:
+            frames: per frame of the window (any length >= 1), its prepared tensors warped
+                to the centre frame's grid (0 where invalid); sizes multiples of
+                :attr:`multiple`.
+            masks: per frame ``(B, 1, H, W)`` validity of the warp (1 valid); the centre's is
+                ignored (valid everywhere).
+            centre: index of frame ``t`` in ``frames``.
+            source: the input source (a key of the base card's sources).
+            trunk_grad: False runs the shared trunk without autograd (the frozen stage of
+                training).
+            features: the trunk's features per frame and scale (``[frame][scale]``, full
+                resolution first), when the caller has them (a frozen trunk's, computed once
+                per training window); ``None``: computed here.
+        """
+        if len(frames) == 1:
+            return self.base.run(frames[0], source)
+        base = self.base
+        n, k, scales = len(frames), base.card.kernel, base.card.scales
+        c = frames[centre]
+        _, factor = demodulate(c["color"], c.get("albedo"))
+        # Nothing of a neighbour frame under its zero mask is read, not even by the trunk's
+        # convolutions (the warp leaves 0 there; a caller's NaN would otherwise spread).
+        frames = [
+            f
+            if i == centre
+            else {
+                key: torch.where(masks[i] > 0.5, v, torch.zeros((), dtype=v.dtype))
+                for key, v in f.items()
+            }
+            for i, f in enumerate(frames)
+        ]
+        keys = [key for key in c if all(key in f for f in frames)]
+        stacked = {key: torch.cat([f[key] for f in frames], dim=0) for key in keys}
+        b = c["color"].shape[0]
+        if features is None:
+            with torch.set_grad_enabled(trunk_grad and torch.is_grad_enabled()):
+                feats_all = base.features(stacked, source)
+            feats = [list(f.split(b, dim=0)) for f in feats_all[:scales]]  # [scale][frame]
+        else:
+            feats = [[features[i][s] for i in range(n)] for s in range(scales)]
+        irr = demodulate(stacked["color"], stacked.get("albedo"))[0]
+        irr = irr.float() if irr.dtype != torch.float64 else irr
+        images = [list(irr.split(b, dim=0))]
+        ones = torch.ones_like(masks[centre][:, :1], dtype=irr.dtype)
+        mk = [[ones if i == centre else (masks[i] > 0.5).to(irr.dtype) for i in range(n)]]
+        for _ in range(1, scales):
+            images.append([downsample(x) for x in images[-1]])
+            mk.append([min_pool(m) for m in mk[-1]])
+        res: Tensor | None = None
+        for s in range(scales - 1, -1, -1):
+            deltas, dalpha = self.mixers[s](feats[s], mk[s], centre)
+            valid = [tap_valid(m, k) for m in mk[s]]
+            logits = [
+                frame_log_softmax(head_logits(base.heads[s], f), v).to(d.dtype) + d
+                for f, v, d in zip(feats[s], valid, deltas)
+            ]
+            fine = apply_joint(images[s], joint_kernel_softmax(logits, valid))
+            if res is None:
+                res = fine
+            else:
+                logit = base.alphas[s](feats[s][centre]).to(dalpha.dtype) + dalpha
+                res = composite(fine, res, torch.sigmoid(logit))
+        assert res is not None
+        if base.card.albedo_kernels and "albedo" in c:
+            factor = apply_head(factor, feats[0][centre], base.albedo_head, k)
+        return (res * factor.to(res.dtype)).clamp_min(0.0)
+
+    def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
+        """Training path: ``batch`` holds ``{name}@{i}`` and ``mask@{i}`` for every frame ``i``
+        of the window (:attr:`card.offsets` order), optionally the trunk's features
+        ``feat{s}@{i}`` per scale ``s``, and one ``source`` index ``source`` for the whole
+        batch (``(B,)``, all equal)."""
+        n = len(self.card.offsets)
+        frames = [
+            {
+                k.split("@")[0]: v
+                for k, v in batch.items()
+                if k.endswith(f"@{i}") and not k.startswith(("mask", "feat"))
+            }
+            for i in range(n)
+        ]
+        masks = [batch[f"mask@{i}"] for i in range(n)]
+        source = self.base.card.sources[int(batch["source"][0])]
+        features = None
+        if "feat0@0" in batch:
+            scales = self.base.card.scales
+            features = [[batch[f"feat{s}@{i}"] for s in range(scales)] for i in range(n)]
+        return self.run(
+            frames, masks, self.centre, source, trunk_grad=self.training_trunk, features=features
+        )
+
+    #: Whether :meth:`forward` lets gradients reach the trunk (set by the trainer).
+    training_trunk: bool = True
+
+    # --- inference ---------------------------------------------------------------------
+    @torch.no_grad()
+    def denoise_window(
+        self,
+        frames: Sequence[Mapping[str, Tensor]],
+        masks: Sequence[Tensor],
+        centre: int,
+        source: str,
+        *,
+        tile: int = TILE,
+    ) -> Tensor:
+        """Tiled :meth:`run` on a window of prepared tensors ``(1, C, H, W)`` of any size; a
+        window of one frame is :meth:`KpcnModel.denoise_tensors` (bit for bit)."""
+        if len(frames) == 1:
+            return self.base.denoise_tensors(frames[0], source, tile=max(tile, 64))
+        h, w = frames[centre]["color"].shape[-2:]
+        m, halo = self.multiple, self.halo
+        tile = max(m, -(-tile // m) * m)
+        out = torch.empty_like(frames[centre]["color"], dtype=torch.float32)
+        for y0 in range(0, h, tile):
+            for x0 in range(0, w, tile):
+                y1, x1 = min(h, y0 + tile), min(w, x0 + tile)
+                a, b = max(0, y0 - halo), min(h, y1 + halo)
+                c, d = max(0, x0 - halo), min(w, x1 + halo)
+                fr = [{k: v[..., a:b, c:d] for k, v in f.items()} for f in frames]
+                mk = [mm[..., a:b, c:d] for mm in masks]
+                ph, pw = -(b - a) % m, -(d - c) % m
+                if ph or pw:
+                    fr = [
+                        {k: F.pad(v, (0, pw, 0, ph), mode="replicate") for k, v in f.items()}
+                        for f in fr
+                    ]
+                    mk = [F.pad(mm, (0, pw, 0, ph), mode="replicate") for mm in mk]
+                res = self.run(fr, mk, centre, source)[..., : b - a, : d - c]
+                out[..., y0:y1, x0:x1] = res[..., y0 - a : y1 - a, x0 - c : x1 - c]
+        return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
+
+    # --- files -----------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike[str]) -> None:
+        save_model(self.card.to_dict(), self, path)
+
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> TemporalKpcn:
+        """Read a model file (or a run folder's ``model.pt``); errors as :meth:`KpcnModel.load`."""
+        p, state = read_model_file(path)
+        model = TemporalKpcn(TemporalCard.from_dict(state["card"], what=str(p)))
+        load_weights(model, state["state"], p)
+        model.eval()
+        return model
+
+
+def from_single_frame(
+    base: KpcnModel, *, window: int = 5, mode: str = "offline", hidden: Sequence[int] | None = None
+) -> TemporalKpcn:
+    """A temporal model around the weights of a trained single-frame ``base`` (the temporal
+    module at its zero start)."""
+    hid = list(hidden) if hidden is not None else [16, 24, 32][: base.card.scales]
+    while len(hid) < base.card.scales:
+        hid.append(hid[-1])
+    card = TemporalCard(base=base.card.to_dict(), window=window, mode=mode, hidden=hid)
+    model = TemporalKpcn(card)
+    model.base.load_state_dict(base.state_dict())
+    return model
+
+
+__all__ = [
+    "FORMAT",
+    "MODES",
+    "TILE",
+    "TemporalCard",
+    "TemporalKpcn",
+    "TemporalMixer",
+    "apply_joint",
+    "frame_log_softmax",
+    "from_single_frame",
+    "joint_kernel_softmax",
+    "min_pool",
+    "tap_valid",
+    "window_offsets",
+]

@@ -1,0 +1,83 @@
+"""Training the temporal kpcn: pair crops, the temporal loss, the frozen trunk."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from mcdenoise.errors import InputError
+from mcdenoise.io import load_buffers
+from mcdenoise.losses import temporal_smape
+from mcdenoise.models.encoders import channel_names, source_channels
+from mcdenoise.models.features import FeatureStats
+from mcdenoise.models.kpcn import new_model
+from mcdenoise.models.temporal import from_single_frame
+from mcdenoise.prep.kpcn import prepare_tensors
+from mcdenoise.prep.kpcn_temporal import PreparedFrame, warp_window
+from mcdenoise.train.config import load_config
+from mcdenoise.train.kpcn_temporal import (
+    PairSampler,
+    Sequence_,
+    TemporalTask,
+    cache_features,
+    find_sequences,
+)
+
+SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
+ONE_THREAD = True
+
+
+def test_temporal_smape_is_zero_without_flicker_and_positive_with_it() -> None:
+    r0, r1 = torch.rand(1, 3, 4, 4), torch.rand(1, 3, 4, 4)
+    assert float(temporal_smape(r1 + 0.5, r0 + 0.5, r1, r0)) == pytest.approx(0.0, abs=1e-6)
+    flicker = r1 * (1 + 0.5 * torch.randn(1, 3, 4, 4))
+    assert float(temporal_smape(flicker, r0, r1, r0)) > 0.05
+
+
+def test_no_sequence_folder_is_one_line_error(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="holds no sequence"):
+        find_sequences(str(tmp_path))
+
+
+def test_pair_crops_and_a_frozen_trunk_step() -> None:
+    b = load_buffers(SAMPLES / "cornell_spp4.exr").crop(40, 40, 32, 32)
+    t = {k: v[None] for k, v in prepare_tensors(b, "full").items()}
+    stats = {"full": FeatureStats.from_samples(channel_names("full"), [source_channels("full", t)])}
+    torch.manual_seed(0)
+    model = from_single_frame(
+        new_model(["full"], stats, channels=(8, 8, 8), kernel=3, scales=3),
+        window=3,
+        hidden=[4, 4, 4],
+    )
+    g = torch.Generator().manual_seed(0)
+    frames = []
+    for i in range(3):
+        tt = dict(t)
+        tt["color"] = t["color"] * (1 + 0.3 * torch.randn(t["color"].shape, generator=g)).abs()
+        zero = torch.zeros_like(t["color"][:, :2])
+        frames.append(
+            PreparedFrame(tt, zero, torch.full_like(zero[:, :1], float(i > 0)), zero, None)
+        )
+    seq = Sequence_("s", refs=[t["color"]] * 3)
+    for i in range(3):
+        tens, masks, _ = warp_window(frames, i, model.card.offsets, fill=True)
+        seq.windows.append((tens, masks))
+    for q in model.base.parameters():
+        q.requires_grad_(False)
+    model.training_trunk = False
+    cache_features(model, [seq])
+    sampler = PairSampler([seq], patch=16, margin=4, aug=True)
+    batch = sampler.batch(2, torch.Generator().manual_seed(1))
+    assert batch["color@1"].shape == (2, 3, 24, 24) and batch["p:color@1"].shape == (2, 3, 24, 24)
+    assert batch["feat2@0"].shape[-1] == 6  # the coarsest scale's features, cropped with it
+    cfg = load_config(None, {"model": "kpcn-temporal", "temporal_weight": "0.5"})
+    task = TemporalTask(model, cfg, [seq])
+    loss = task.loss(batch)
+    assert torch.isfinite(loss)
+    loss.backward()
+    assert all(p.grad is None for p in model.base.parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.mixers.parameters())
+    scores = task.validate()
+    assert scores["val_loss"] > 0 and "val_trelmse_ratio_to_base" in scores
