@@ -80,6 +80,14 @@ def _spp_of(part: str | None) -> int | None:
     return None
 
 
+def _read(path: Path, part: str | None) -> FeatureBuffers:
+    """A level or reference: an OIDN-layout file (``*_0004spp.hdr.exr`` with its ``.alb`` /
+    ``.nrm``) through :func:`mcdenoise.io.oidn_layout.read_oidn_level`, else the EXR."""
+    from mcdenoise.io.oidn_layout import parse_oidn_name, read_oidn_level
+
+    return read_oidn_level(path) if parse_oidn_name(path.name) else load_buffers(path, part=part)
+
+
 def scan_dataset(root: str | os.PathLike[str], levels: Sequence[int] = ()) -> list[Entry]:
     """Every (input level, reference) pair under ``root``, sorted by path then spp.
 
@@ -109,6 +117,14 @@ def scan_dataset(root: str | os.PathLike[str], levels: Sequence[int] = ()) -> li
             if levels and spp not in levels:
                 continue
             entries.append(Entry(image, path, part, ref, spp))
+    if not entries:
+        from mcdenoise.io.oidn_layout import find_oidn_images, is_oidn_tree
+
+        if is_oidn_tree(base):  # OIDN's training layout: <name>_0004spp.hdr.exr + _ref.hdr.exr
+            for im in find_oidn_images(base):
+                for spp, hdr in im.levels.items():
+                    if im.reference is not None and (not levels or spp in levels):
+                        entries.append(Entry(im.id, hdr, None, im.reference, spp))
     if not entries:
         wanted = f" at spp {list(levels)}" if levels else ""
         raise InputError(f"{base}: no input EXR with a ref/<name>.exr reference{wanted}")
@@ -197,11 +213,11 @@ def load_items(
     for e in bar:
         try:
             if e.reference not in refs:
-                refs = {e.reference: load_buffers(e.reference)["color"]}
+                refs = {e.reference: _read(e.reference, None)["color"]}
             ref = refs[e.reference]
             why = check_reference(ref)
             if why is None:
-                buffers = load_buffers(e.path, part=e.part)
+                buffers = _read(e.path, e.part)
                 if tuple(buffers["color"].shape) != tuple(ref.shape):
                     why = f"size {tuple(buffers['color'].shape[1:])} != reference {tuple(ref.shape[1:])}"
                 elif min(ref.shape[1:]) < min_size:
