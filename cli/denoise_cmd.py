@@ -67,6 +67,14 @@ from tqdm import tqdm
 )
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON record per output.")
 @click.option(
+    "--estimate-error",
+    is_flag=True,
+    help="Estimate each output's relMSE without a reference, from the input's two half "
+    "buffers (mcdenoise render --halves): the method also runs on each half, judged against "
+    "the other. Written as mcdenoise:relmse_estimated (and _se) in the header and "
+    "relmse_estimated in --json.",
+)
+@click.option(
     "-v",
     "--verbose",
     is_flag=True,
@@ -93,6 +101,7 @@ def denoise(
     half,
     compression,
     as_json,
+    estimate_error,
     verbose,
     progress,
 ):
@@ -113,7 +122,7 @@ def denoise(
     from mcdenoise import denoise as dn
 
     read = dn.ReadOptions(profile=profile, mapping=mapping, part=part, spp=spp)
-    write = dn.WriteOptions(half=half, compression=compression)
+    write = dn.WriteOptions(half=half, compression=compression, estimate_error=estimate_error)
     try:
         outcomes = dn.denoise_paths(
             inputs,

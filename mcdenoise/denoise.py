@@ -366,6 +366,7 @@ class FileResult:
     output: Path
     result: DenoiseResult
     clamped: int = 0  # values clamped to the half range when writing
+    estimate: dict[str, Any] | None = None  # --estimate-error: relmse_estimated, ... (JSON)
 
     def to_dict(self) -> dict[str, Any]:
         r = self.result
@@ -378,6 +379,7 @@ class FileResult:
             "device": r.device,
             "repaired": r.repaired,
             "clamped": self.clamped,
+            **(self.estimate or {}),
         }
 
 
@@ -411,8 +413,42 @@ def denoise_file(
         buffers = load_buffers(
             src, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
         )
+    if write.estimate_error:
+        from mcdenoise.eval.estimate import split_halves
+
+        halves = split_halves(buffers)  # refuses an input without halves before any work
     result = denoise(buffers, method, params=params, device=device)
-    return _write_result(src, dst, buffers, result, read, write)
+    estimate = None
+    if write.estimate_error:
+        estimate = _estimate(buffers, halves, result, method, params, device)
+    return _write_result(src, dst, buffers, result, read, write, estimate)
+
+
+def _estimate(
+    buffers: FeatureBuffers,
+    halves: tuple[FeatureBuffers, FeatureBuffers],
+    result: DenoiseResult,
+    method: str | Method,
+    params: Mapping[str, Any] | None,
+    device: str | torch.device,
+) -> dict[str, Any]:
+    """``--estimate-error``: the method on each half, judged against the other
+    (:func:`mcdenoise.eval.estimate.estimate_from_outputs`), as the estimate of the error
+    of ``result`` (the method on the full buffer); JSON fields ``relmse_estimated``, its
+    standard error ``relmse_estimated_se``, ``estimate_of`` and ``estimate_seconds``."""
+    import time
+
+    from mcdenoise.eval.estimate import estimate_from_outputs
+
+    t0 = time.perf_counter()
+    if not isinstance(method, str):
+        method = method.name
+    elif method == "auto":
+        method = result.method
+    out_a, out_b = (denoise(h, method, params=params, device=device).image for h in halves)
+    clean, _ = sanitize(buffers)
+    est = estimate_from_outputs(out_a, out_b, clean, output=result.image)
+    return {**est.to_dict(), "estimate_seconds": round(time.perf_counter() - t0, 6)}
 
 
 def _write_result(
@@ -422,9 +458,11 @@ def _write_result(
     result: DenoiseResult,
     read: ReadOptions,
     write: WriteOptions,
+    estimate: Mapping[str, Any] | None = None,
 ) -> FileResult:
     """Write ``result`` (the output of ``src``, read into ``buffers`` with ``read``) to
-    ``dst`` atomically, with the header attributes :func:`denoise_file` describes."""
+    ``dst`` atomically, with the header attributes :func:`denoise_file` describes
+    (``estimate``: ``--estimate-error``'s fields, written as ``mcdenoise:<field>``)."""
     from mcdenoise.io import save_buffers
 
     out = FeatureBuffers(
@@ -446,11 +484,13 @@ def _write_result(
         attrs["mcdenoise:source_profile"] = buffers.profile
     if buffers.spp is not None:
         attrs["mcdenoise:spp"] = int(buffers.spp)
+    for key, value in (estimate or {}).items():
+        attrs[f"mcdenoise:{key}"] = value
     report = save_buffers(
         dst, out, half=write.half, compression=write.compression, attributes=attrs
     )
     clamped = sum(getattr(report, "clamped", {}).values())
-    return FileResult(src, dst, result, clamped)
+    return FileResult(src, dst, result, clamped, dict(estimate) if estimate else None)
 
 
 #: Header attributes of an input that say which scene it shows (written by
@@ -588,6 +628,11 @@ class JobOutcome:
         extra = f", {res.clamped} values clamped to the half range" if res.clamped else ""
         fixed = sum(res.result.repaired.values())
         extra += f", {fixed} NaN/Inf/negative input values repaired" if fixed else ""
+        if res.estimate:
+            extra += (
+                f", relMSE {res.estimate['relmse_estimated']:.4g} "
+                f"± {res.estimate['relmse_estimated_se']:.2g} (estimated from the halves)"
+            )
         return (
             f"{res.output}  [{res.result.method}, {res.result.seconds:.2f} s on "
             f"{res.result.device}{extra}]"
@@ -866,4 +911,10 @@ def denoise_paths(
     """
     read = read or ReadOptions()
     plan = plan_jobs(inputs, output, method, params=params, model=model, part=read.part, read=read)
+    if write is not None and write.estimate_error:
+        temporal = sorted({j.method.name for j in plan.jobs if isinstance(j, SequenceJob)})
+        if temporal:
+            raise OptionError(
+                f"--estimate-error judges still images; {', '.join(temporal)} denoises sequences"
+            )
     return run_jobs(plan, device=device, read=read, write=write, progress=progress)

@@ -63,10 +63,13 @@ class ReadOptions:
 
 @dataclass
 class WriteOptions:
-    """How outputs are written: ``half`` (float16, clamped and counted) and compression."""
+    """How outputs are written: ``half`` (float16, clamped and counted) and compression;
+    ``estimate_error``: also estimate the output's relMSE from the input's half buffers
+    (:mod:`mcdenoise.eval.estimate`) into the header and the JSON record."""
 
     half: bool = False
     compression: str = "zip"
+    estimate_error: bool = False
 
 
 def check_output_path(src: Path, dst: Path) -> None:
