@@ -259,7 +259,15 @@ def _relmse_terms(out, ref, ref_var):
     return raw, corr
 
 
-def heldout_records(data: Path, spp: list[int], methods: list[str], done: dict) -> list[dict]:
+def heldout_records(
+    data: Path,
+    spp: list[int],
+    methods: list[str],
+    done: dict,
+    *,
+    ref_dir: Path | None = None,
+    images: list[str] | None = None,
+) -> list[dict]:
     """One record per (image, level, method); ``done`` holds records already measured
     (keyed ``image/spp/method``), which are kept. Besides the estimate ``--estimate-error``
     writes (``estimate``: relMSE normalised by the method's own output), ``estimate_shared``
@@ -281,7 +289,15 @@ def heldout_records(data: Path, spp: list[int], methods: list[str], done: dict) 
 
     records = []
     for img in load_manifest(data)["images"]:
-        ref_fb = load_buffers(data / img["files"]["reference"])
+        if images and img["id"] not in images:
+            continue
+        ref_path = data / img["files"]["reference"]
+        if ref_dir is not None:  # the same image id and seed rendered elsewhere with a reference
+            ref_path = ref_dir / f"{img['id']}.exr"
+        if not ref_path.is_file():
+            print(f"{img['id']}: skipped: no reference {ref_path}", file=sys.stderr)
+            continue
+        ref_fb = load_buffers(ref_path)
         ref, ref_var = ref_fb["color"].double(), ref_fb.get("color_var")
         for level in spp:
             keys = [f"{img['id']}/{level}/{m}" for m in methods]
@@ -415,7 +431,7 @@ def heldout(args: argparse.Namespace) -> int:
 
     done: dict = {}
     if args.from_json:
-        records = json.loads(Path(args.from_json).read_text())["records"]
+        records = [r for f in args.from_json for r in json.loads(Path(f).read_text())["records"]]
     else:
         if args.json and Path(args.json).exists():
             for r in json.loads(Path(args.json).read_text())["records"]:
@@ -424,7 +440,14 @@ def heldout(args: argparse.Namespace) -> int:
 
         torch.set_num_threads(args.threads)
         spp = [int(v) for v in args.spp.split(",")]
-        records = heldout_records(Path(args.data), spp, args.methods.split(","), done)
+        records = heldout_records(
+            Path(args.data),
+            spp,
+            args.methods.split(","),
+            done,
+            ref_dir=Path(args.ref_dir) if args.ref_dir else None,
+            images=args.images.split(",") if args.images else None,
+        )
         if args.json:
             Path(args.json).write_text(json.dumps({"records": records}, indent=1))
     for truth, est in (
@@ -460,8 +483,17 @@ def main(argv: list[str] | None = None) -> int:
     ho.add_argument("--spp", default="4,16,64")
     ho.add_argument("--methods", default=",".join(METHODS))
     ho.add_argument("--threads", type=int, default=1)
+    ho.add_argument(
+        "--ref-dir",
+        default=None,
+        help="references as DIR/<id>.exr (the same ids and seeds rendered with a reference "
+        "elsewhere, e.g. data/generated/heldout/ref for a --halves render of its scenes)",
+    )
+    ho.add_argument("--images", default=None, help="only these image ids (comma-separated)")
     ho.add_argument("--json", default=None, help="write (and resume from) every record here")
-    ho.add_argument("--from-json", default=None, help="only analyse the records of this file")
+    ho.add_argument(
+        "--from-json", nargs="+", default=None, help="only analyse the records of these files"
+    )
     args = ap.parse_args(argv)
     cmds = {"render-cost": render_cost, "synthetic": synthetic, "heldout": heldout}
     return cmds[args.cmd](args)

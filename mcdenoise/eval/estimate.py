@@ -64,14 +64,17 @@ Inputs without halves cannot be judged: :func:`split_halves` raises naming what 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from mcdenoise.errors import InputError
+from mcdenoise.errors import InputError, McdenoiseError
 from mcdenoise.io.buffers import (
     HALF_NAMES,
     HALF_SUFFIXES,
@@ -277,3 +280,166 @@ def estimate_error(
     return estimate_from_outputs(
         denoiser(half_a), denoiser(half_b), buffers, output=output, block=block
     )
+
+
+# --- reports without a reference (mcdenoise eval without --ref) ------------------------------
+#: Columns of the reference-free report, in order.
+ESTIMATE_COLUMNS = (
+    "scene",
+    "method",
+    "spp",
+    "relmse_estimated",
+    "relmse_estimated_se",
+    "estimate_of",
+    "file",
+    "note",
+)
+
+
+def estimate_noisy(
+    buffers: FeatureBuffers, pseudo_reference: Tensor | None = None
+) -> ErrorEstimate:
+    """The estimated error of the noisy input itself (the identity on each half:
+    ``¼(A − B)²`` per pixel, unbiased for the variance of ``color``), normalised by
+    ``pseudo_reference`` (e.g. the median of denoised outputs of it) or else by ``color``
+    (whose square its own noise inflates: an underestimate at low spp)."""
+    check_halves(buffers)
+    if not has_halves(buffers):
+        raise InputError(f"{buffers.source or 'input'}: no half buffers (color_a, color_b)")
+    return estimate_from_outputs(
+        buffers["color_a"], buffers["color_b"], buffers, output=pseudo_reference
+    )
+
+
+def estimate_files(outputs: Sequence[str | os.PathLike[str]]) -> list[dict[str, Any]]:
+    """One row per output of ``mcdenoise denoise`` (files or folders of them): the estimate
+    ``--estimate-error`` recorded in its header (``mcdenoise:relmse_estimated`` and ``_se``),
+    and one ``noisy`` row per source input that has halves (:func:`estimate_noisy`, its
+    relMSE normalised by the pixelwise median of the given outputs of that input). An output
+    without an estimate gets a row whose note says so. Every row is marked
+    ``"estimated": True``; nothing here is measured against a reference.
+    """
+    from mcdenoise.io import load_buffers, probe_exr
+
+    files: list[Path] = []
+    for p in map(Path, outputs):
+        files += sorted(p.glob("*.exr")) if p.is_dir() else [p]
+    rows: list[dict[str, Any]] = []
+    sources: dict[tuple[str, str | None], list[Path]] = {}
+    for f in files:
+        attrs = probe_exr(f)[0].attributes
+        scene = str(attrs.get("mcdenoise:image") or attrs.get("mcdenoise:scene") or f.stem)
+        row: dict[str, Any] = {
+            "scene": scene,
+            "method": str(attrs.get("mcdenoise:method", "?")),
+            "spp": attrs.get("mcdenoise:spp"),
+            "relmse_estimated": attrs.get("mcdenoise:relmse_estimated"),
+            "relmse_estimated_se": attrs.get("mcdenoise:relmse_estimated_se"),
+            "estimate_of": attrs.get("mcdenoise:estimate_of"),
+            "file": str(f),
+            "note": "",
+            "estimated": True,
+        }
+        if row["relmse_estimated"] is None:
+            row["note"] = "no estimate: denoise with --estimate-error (an input with halves)"
+        rows.append(row)
+        src = attrs.get("mcdenoise:source")
+        if src:
+            part = attrs.get("mcdenoise:source_part")
+            sources.setdefault((str(src), None if part is None else str(part)), []).append(f)
+    for (src, part), outs in sources.items():
+        try:
+            fb = load_buffers(src, part=part)
+        except (McdenoiseError, OSError) as err:  # a moved or unreadable source: say so
+            msg = " ".join(str(err).split())
+            rows.append({**_noisy_row(src, None), "note": f"source not read: {msg}"})
+            continue
+        if not has_halves(fb):
+            continue
+        colors = [load_buffers(o)["color"] for o in outs]
+        pseudo = torch.stack(colors).median(0).values if colors else None
+        est = estimate_noisy(fb, pseudo)
+        rows.append(
+            {
+                **_noisy_row(src, fb),
+                "relmse_estimated": est.relmse,
+                "relmse_estimated_se": est.relmse_se,
+                "estimate_of": "noisy input",
+                "note": f"normalised by the median of {len(colors)} output(s)",
+            }
+        )
+    rows.sort(key=lambda r: (r["scene"], r["spp"] or 0, r["method"] != "noisy", r["method"]))
+    return rows
+
+
+def _noisy_row(src: str, fb: FeatureBuffers | None) -> dict[str, Any]:
+    attrs = fb.attributes if fb is not None else {}
+    scene = attrs.get("mcdenoise:image") or attrs.get("mcdenoise:scene") or Path(src).stem
+    return {
+        "scene": str(scene),
+        "method": "noisy",
+        "spp": fb.spp if fb is not None else None,
+        "relmse_estimated": None,
+        "relmse_estimated_se": None,
+        "estimate_of": None,
+        "file": src,
+        "note": "",
+        "estimated": True,
+    }
+
+
+def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as a text table, titled as estimates."""
+    lines = [
+        "relMSE ESTIMATED without a reference (from the half buffers; ± one standard error)",
+        f"{'scene':28s} {'spp':>5s} {'method':18s} {'relMSE (est.)':>14s} {'± se':>10s}",
+    ]
+    for r in rows:
+        v, se = r["relmse_estimated"], r["relmse_estimated_se"]
+        val = f"{v:14.5g}" if v is not None else f"{'-':>14s}"
+        unc = f"{se:10.2g}" if se is not None else f"{'':>10s}"
+        spp = str(r["spp"]) if r["spp"] is not None else "-"
+        lines.append(f"{r['scene']:28s} {spp:>5s} {r['method']:18s} {val} {unc}  {r['note']}")
+    return "\n".join(lines)
+
+
+def write_estimate_report(
+    rows: Sequence[dict[str, Any]], out_dir: str | os.PathLike[str]
+) -> dict[str, Path]:
+    """``estimate.json``, ``estimate.csv`` and ``estimate.html`` in ``out_dir`` (created),
+    every one saying that the values are estimated without a reference."""
+    import csv
+    import html
+    import json
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {k: out / f"estimate.{k}" for k in ("json", "csv", "html")}
+    note = (
+        "relMSE estimated without a reference from two independent half buffers "
+        "(mcdenoise.eval.estimate); not measured"
+    )
+    paths["json"].write_text(
+        json.dumps({"estimated": True, "note": note, "rows": list(rows)}, indent=1),
+        encoding="utf-8",
+    )
+    with paths["csv"].open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow([*ESTIMATE_COLUMNS, "estimated"])
+        for r in rows:
+            w.writerow([*(r.get(c) for c in ESTIMATE_COLUMNS), True])
+    cells = "".join(
+        "<tr>"
+        + "".join(f"<td>{html.escape(str(r.get(c, '')))}</td>" for c in ESTIMATE_COLUMNS)
+        + "</tr>"
+        for r in rows
+    )
+    head = "".join(f"<th>{c}</th>" for c in ESTIMATE_COLUMNS)
+    paths["html"].write_text(
+        f"<!doctype html><meta charset='utf-8'><title>Estimated relMSE</title>"
+        f"<h1>Estimated relMSE (no reference)</h1><p><b>{html.escape(note)}.</b> "
+        "± is one standard error over 16×16 blocks.</p>"
+        f"<table border='1'><tr>{head}</tr>{cells}</table>",
+        encoding="utf-8",
+    )
+    return paths

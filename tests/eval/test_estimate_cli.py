@@ -64,3 +64,29 @@ def test_without_halves_or_with_a_temporal_method_it_is_refused(tmp_path: Path) 
         ["denoise", str(tmp_path), "-m", "svgf", "--estimate-error", "-o", str(tmp_path / "o")],
     )
     assert r.exit_code != 0 and "--estimate-error judges still images" in r.output + r.stderr
+
+
+def test_reference_free_report_of_several_methods(tmp_path: Path) -> None:
+    from mcdenoise.eval.estimate import estimate_files, format_estimates, write_estimate_report
+
+    src = _image(tmp_path / "in.exr")
+    outs = tmp_path / "outs"
+    for m in ("cross-bilateral", "nlm"):
+        r = run("denoise", str(src), "-m", m, "--estimate-error", "-o", str(outs),
+                "--threads", "1")  # fmt: skip
+        assert r.exit_code == 0, r.output + r.stderr
+    (tmp_path / "plain").mkdir()
+    r = run("denoise", str(src), "-m", "cross-bilateral", "-o", str(tmp_path / "plain" / "x.exr"))
+    assert r.exit_code == 0, r.output + r.stderr
+    rows = estimate_files([outs, tmp_path / "plain" / "x.exr"])
+    by = {(r["method"], r["file"].endswith("x.exr")): r for r in rows}
+    assert {m for m, _ in by} == {"noisy", "cross-bilateral", "nlm"}
+    assert all(r["estimated"] for r in rows)
+    assert by[("nlm", False)]["relmse_estimated"] >= 0
+    assert by[("noisy", False)]["relmse_estimated"] > by[("nlm", False)]["relmse_estimated"]
+    assert "--estimate-error" in by[("cross-bilateral", True)]["note"]
+    paths = write_estimate_report(rows, tmp_path / "report")
+    assert json.loads(paths["json"].read_text())["estimated"] is True
+    assert "not measured" in paths["html"].read_text()
+    assert paths["csv"].read_text().splitlines()[0].endswith("estimated")
+    assert format_estimates(rows).startswith("relMSE ESTIMATED without a reference")
