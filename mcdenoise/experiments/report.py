@@ -432,6 +432,8 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
         if any((r.get("metrics") or {}).get(m) is not None for r in result.scene_records(scene.id))
     ]
     rows = []
+    # times from several machines (shards): each timed row names its host
+    hosts = len(result.provenance.get("timing_hosts") or {}) > 1
     for r in sorted(
         result.scene_records(scene.id), key=lambda r: (result.labels.index(r["method"]), r["spp"])
     ):
@@ -447,7 +449,9 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
             f'<td class="num">{_g(r.get("render_seconds"))}</td>'
             f'<td class="num">{_g(r.get("denoise_seconds"))}{_process_mark(r)}'
             f"{_sub(_esc(runs))}</td>"
-            f"<td>{_esc(r.get('device') or '')}</td></tr>"
+            f"<td>{_esc(r.get('device') or '')}"
+            + (_sub(_esc(r.get("host") or "unknown")) if hosts and r.get("timing") else "")
+            + "</td></tr>"
         )
     head = [
         "method",
@@ -455,7 +459,7 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
         *(_esc(metric_spec(m).label) for m in shown),
         "render s",
         "denoise s (runs)",
-        "device",
+        "device, host" if hosts else "device",
     ]
     summary = f"<summary>All metrics and timings of {_esc(scene.id)}</summary>"
     note = (

@@ -124,7 +124,9 @@ def test_a_merge_takes_each_shards_device_and_says_when_hosts_differ(tmp_path, s
     assert data["provenance"]["timing_hosts"] == {host_name(): 6, "node-b": 6}
     note = next(n for n in data["notes"] if "machines" in n)
     assert "measured on 2 machines" in note and "node-b (6 units)" in note
-    assert "measured on 2 machines" in (out / "report.html").read_text(encoding="utf-8")
+    html = (out / "report.html").read_text(encoding="utf-8")
+    assert "measured on 2 machines" in html
+    assert "<th>device, host</th>" in html and '<span class="sub">node-b</span>' in html
 
     for unit in units:  # fingerprinted with cuda, recorded as cpu: not this spec's record
         if unit.entry.label == "box":
