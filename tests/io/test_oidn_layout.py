@@ -151,3 +151,24 @@ def test_oidns_own_reader_sees_the_written_set(tmp_path):
             hwc = inp.read_image(subimage=0, miplevel=0, chbegin=0, chend=3, format=oiio.FLOAT)
             inp.close()
             assert np.array_equal(np.moveaxis(hwc, -1, 0), orig[buffer].numpy()), (stem, feature)
+
+
+def test_train_reads_the_written_set_like_the_render_folder(tmp_path):
+    """``mcdenoise train``'s scanner (mcdenoise/train/dataset.py) on the OIDN set: the same
+    (image, spp) pairs as on the render folder, the same colour and reference pixels."""
+    from mcdenoise.train.dataset import load_items, scan_dataset
+
+    src = render_folder(tmp_path / "render", ids=("alpha", "beta"), spp=(1, 4))
+    write_oidn_layout(src, tmp_path / "oidn")
+    ours, theirs = scan_dataset(src), scan_dataset(tmp_path / "oidn")
+    assert [(e.image, e.spp) for e in theirs] == [(e.image, e.spp) for e in ours]
+
+    def prepare(buffers, ref):
+        return {"color": buffers["color"], "albedo": buffers["albedo"], "reference": ref}
+
+    a, _ = load_items(ours, prepare)
+    b, _ = load_items(theirs, prepare)
+    assert len(a) == len(b) == 4
+    for x, y in zip(a, b, strict=True):
+        for key in ("color", "albedo", "reference"):
+            assert torch.equal(x.tensors[key], y.tensors[key]), key
