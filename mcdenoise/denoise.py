@@ -413,42 +413,17 @@ def denoise_file(
         buffers = load_buffers(
             src, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
         )
-    if write.estimate_error:
-        from mcdenoise.eval.estimate import split_halves
+    if write.estimate_error:  # refuse an input without halves before any work
+        from mcdenoise.eval.estimate import estimate_record, split_halves
 
-        halves = split_halves(buffers)  # refuses an input without halves before any work
+        split_halves(buffers)
     result = denoise(buffers, method, params=params, device=device)
     estimate = None
-    if write.estimate_error:
-        estimate = _estimate(buffers, halves, result, method, params, device)
+    if write.estimate_error:  # the same method on each half, judged against the other
+        name = result.method
+        run = lambda b: denoise(b, name, params=params, device=device).image  # noqa: E731
+        estimate = estimate_record(run, buffers, result.image)
     return _write_result(src, dst, buffers, result, read, write, estimate)
-
-
-def _estimate(
-    buffers: FeatureBuffers,
-    halves: tuple[FeatureBuffers, FeatureBuffers],
-    result: DenoiseResult,
-    method: str | Method,
-    params: Mapping[str, Any] | None,
-    device: str | torch.device,
-) -> dict[str, Any]:
-    """``--estimate-error``: the method on each half, judged against the other
-    (:func:`mcdenoise.eval.estimate.estimate_from_outputs`), as the estimate of the error
-    of ``result`` (the method on the full buffer); JSON fields ``relmse_estimated``, its
-    standard error ``relmse_estimated_se``, ``estimate_of`` and ``estimate_seconds``."""
-    import time
-
-    from mcdenoise.eval.estimate import estimate_from_outputs
-
-    t0 = time.perf_counter()
-    if not isinstance(method, str):
-        method = method.name
-    elif method == "auto":
-        method = result.method
-    out_a, out_b = (denoise(h, method, params=params, device=device).image for h in halves)
-    clean, _ = sanitize(buffers)
-    est = estimate_from_outputs(out_a, out_b, clean, output=result.image)
-    return {**est.to_dict(), "estimate_seconds": round(time.perf_counter() - t0, 6)}
 
 
 def _write_result(

@@ -71,10 +71,16 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.filters.two_buffer import (
+    BLOCK,
+    block_means,
+    cross_error,
+    half_error,
+    squared_error,
+)
 from mcdenoise.io.buffers import (
     HALF_NAMES,
     HALF_SUFFIXES,
@@ -85,8 +91,23 @@ from mcdenoise.io.buffers import (
 )
 from mcdenoise.losses import RELMSE_EPS
 
-#: Default side of the blocks over which the image value's standard error is taken.
-BLOCK = 16
+__all__ = [
+    "BLOCK",
+    "ErrorEstimate",
+    "block_means",
+    "cross_error",
+    "estimate_error",
+    "estimate_files",
+    "estimate_from_outputs",
+    "estimate_noisy",
+    "estimate_record",
+    "format_estimates",
+    "half_error",
+    "relative",
+    "split_halves",
+    "squared_error",
+    "write_estimate_report",
+]
 
 Denoiser = Callable[[FeatureBuffers], Tensor]
 
@@ -136,60 +157,10 @@ def split_halves(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffer
 _ALL_HALVES = frozenset(HALF_NAMES) | {n + VAR_SUFFIX for n in HALF_NAMES}
 
 
-def half_error(out_a: Tensor, color_b: Tensor, var_b: Tensor | None = None) -> Tensor:
-    """Per-pixel estimate of the squared error of ``out_a`` = D(A) (NFOR's selection term):
-    ``(D_A − B)² − v_B``, unbiased; without ``var_b`` the term common to every candidate
-    filter is left in (``(D_A − B)²``, enough to compare candidates)."""
-    e = (out_a - color_b).square()
-    return e if var_b is None else e - var_b
-
-
-def cross_error(
-    out_a: Tensor,
-    out_b: Tensor,
-    color_a: Tensor,
-    color_b: Tensor,
-    var_a: Tensor | None = None,
-    var_b: Tensor | None = None,
-) -> Tensor:
-    """Per-pixel unbiased estimate of the squared error of ``(out_a + out_b) / 2``:
-    ``½[(D_A − B)² − v_B + (D_B − A)² − v_A] − ¼(D_A − D_B)²`` (module docstring).
-
-    Without the variances the common term ``½(v_A + v_B)`` is left out: the result then
-    ranks candidate filters (its differences are unbiased) but is not an error.
-    All tensors broadcast together, e.g. ``(3, H, W)`` or ``(N, 3, H, W)``.
-    """
-    e = 0.5 * ((out_a - color_b).square() + (out_b - color_a).square())
-    e = e - 0.25 * (out_a - out_b).square()
-    if var_a is not None and var_b is not None:
-        e = e - 0.5 * (var_a + var_b)
-    return e
-
-
-def squared_error(out_a: Tensor, out_b: Tensor, color_a: Tensor, color_b: Tensor) -> Tensor:
-    """Per-pixel unbiased estimate of the squared error of ``(out_a + out_b) / 2`` that needs
-    no variance buffer: :func:`cross_error` with ``½(A − B)²`` as the estimate of the common
-    term ``½(Var A + Var B)`` (module docstring). What :func:`estimate_from_outputs` uses."""
-    return cross_error(out_a, out_b, color_a, color_b) - 0.5 * (color_a - color_b).square()
-
-
 def relative(squared_error: Tensor, judged: Tensor, eps: float = RELMSE_EPS) -> Tensor:
     """``squared_error / (judged² + ε)``: a squared error in relMSE units, the judged image
     standing in for the reference (module docstring)."""
     return squared_error / (judged.square() + eps)
-
-
-def block_means(t: Tensor, block: int = BLOCK) -> Tensor:
-    """Means of ``t`` ``(..., H, W)`` over the channels (all leading dims but the last two
-    are averaged) and ``block × block`` blocks; partial blocks at the right and bottom edges
-    are weighted by their pixel count. Returns ``(nby, nbx)`` means and the pixel counts."""
-    x = t.reshape(-1, *t.shape[-2:]).double().mean(0)[None, None]
-    h, w = x.shape[-2:]
-    ones = torch.ones_like(x)
-    pad = (0, (-w) % block, 0, (-h) % block)
-    sums = F.avg_pool2d(F.pad(x, pad), block, divisor_override=1)[0, 0]
-    counts = F.avg_pool2d(F.pad(ones, pad), block, divisor_override=1)[0, 0]
-    return sums / counts, counts
 
 
 @dataclass
@@ -280,6 +251,24 @@ def estimate_error(
     return estimate_from_outputs(
         denoiser(half_a), denoiser(half_b), buffers, output=output, block=block
     )
+
+
+def estimate_record(denoiser: Denoiser, buffers: FeatureBuffers, output: Tensor) -> dict[str, Any]:
+    """What ``mcdenoise denoise --estimate-error`` records: ``denoiser`` run on each half of
+    ``buffers`` (repaired as the denoiser's input is, :func:`mcdenoise.io.sanitize`), the
+    estimate of the error of ``output`` (the denoiser on the full buffer), as the JSON fields
+    ``relmse_estimated``, ``relmse_estimated_se``, ``mse_estimated``, ``estimate_of`` and
+    ``estimate_seconds``."""
+    import time
+
+    from mcdenoise.io.buffers import sanitize
+
+    t0 = time.perf_counter()
+    half_a, half_b = split_halves(buffers)
+    out_a, out_b = denoiser(half_a), denoiser(half_b)
+    clean, _ = sanitize(buffers)
+    est = estimate_from_outputs(out_a, out_b, clean, output=output)
+    return {**est.to_dict(), "estimate_seconds": round(time.perf_counter() - t0, 6)}
 
 
 # --- reports without a reference (mcdenoise eval without --ref) ------------------------------
