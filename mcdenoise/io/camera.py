@@ -85,7 +85,7 @@ class CameraInfo:
     def focal_pixels(self, width: int, height: int) -> float:
         """Focal length in pixels for a ``width`` × ``height`` image (square pixels).
 
-        >>> CameraInfo(fov=90.0).focal_pixels(64, 32)
+        >>> round(CameraInfo(fov=90.0).focal_pixels(64, 32), 9)
         32.0
         """
         side = width if self.fov_axis == "x" else height
