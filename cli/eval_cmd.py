@@ -42,7 +42,9 @@ class _MetricsOption(click.Option):
     default=None,
     type=click.Path(),
     help="Reference EXR, a folder of references matched to outputs by file-name prefix, or "
-    "a folder of frames frame_0000.exr ... (a sequence) (required without --experiment).",
+    "a folder of frames frame_0000.exr ... (a sequence). Without --ref: each output's relMSE "
+    "ESTIMATED from its input's half buffers (outputs of `denoise --estimate-error`; "
+    "docs/results/estimate.md).",
 )
 @click.option(
     "-i",
@@ -158,10 +160,11 @@ def eval_cmd(
             raise click.UsageError("--warmup applies to --ref sequences, not to --experiment")
         _experiment(experiment, out_dir, names, mode, threads, shard=shard, merge=merge)
         return
-    if reference is None:
-        raise click.UsageError("Missing option '--ref' (or give --experiment SPEC).")
     if not outputs:
         raise click.UsageError("Missing argument 'OUTPUTS...' (or give --experiment SPEC).")
+    if reference is None:
+        _estimated(outputs, out_dir)
+        return
 
     from mcdenoise.eval import evaluate, write_report
     from mcdenoise.eval.temporal import WARMUP_FRAMES
@@ -185,6 +188,23 @@ def eval_cmd(
     for kind in ("html", "json", "csv", "frames"):
         if kind in paths:
             click.echo(f"{kind}: {paths[kind]}")
+
+
+def _estimated(outputs, out_dir):
+    """No reference: every output's relMSE as `denoise --estimate-error` estimated it from the
+    input's half buffers (mcdenoise.eval.estimate), printed and, with -o, written as a report."""
+    from mcdenoise.eval.estimate import estimate_files, format_estimates, write_estimate_report
+
+    rows = estimate_files(list(outputs))
+    if not any(r["relmse_estimated"] is not None for r in rows if r["method"] != "noisy"):
+        raise click.UsageError(
+            "Missing option '--ref': no output here carries an estimated error (denoise an "
+            "input with half buffers with --estimate-error to evaluate without a reference)."
+        )
+    click.echo(format_estimates(rows))
+    if out_dir is not None:
+        for kind, path in write_estimate_report(rows, out_dir).items():
+            click.echo(f"{kind}: {path}")
 
 
 def _experiment(spec_path, out_dir, metrics, progress, threads=None, *, shard=None, merge=False):

@@ -1,0 +1,61 @@
+"""``mcdenoise eval OUTPUTS`` without ``--ref``: the estimates ``denoise --estimate-error``
+recorded, printed and written as a report marked estimated; outputs without any estimate are
+refused with the missing option named, and nothing is written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from click.testing import CliRunner
+from mcdenoise_cli.main import main
+
+from mcdenoise.io import FeatureBuffers, save_buffers
+
+
+def _noisy_with_halves(path: Path, size: int = 24) -> Path:
+    g = torch.Generator().manual_seed(1)
+    _y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    mu = (0.2 + 0.6 * (x > size // 2)).float().expand(3, -1, -1)
+    a = mu * (1 + 0.5 * torch.randn(3, size, size, generator=g)).clamp_min(0)
+    b = mu * (1 + 0.5 * torch.randn(3, size, size, generator=g)).clamp_min(0)
+    var = torch.full((3, size, size), 0.02)
+    bufs = {"color": (a + b) / 2, "color_var": var / 2, "color_a": a, "color_b": b}
+    save_buffers(path, FeatureBuffers(bufs | {"color_a_var": var, "color_b_var": var}, spp=8))
+    return path
+
+
+def run(*args: str):
+    return CliRunner().invoke(main, list(args))
+
+
+def test_eval_without_ref_reports_the_estimates(tmp_path: Path) -> None:
+    src = _noisy_with_halves(tmp_path / "in.exr")
+    outs = tmp_path / "outs"
+    outs.mkdir()
+    for m in ("cross-bilateral", "nlm"):
+        r = run("denoise", str(src), "-m", m, "--estimate-error", "-o", str(outs / f"{m}.exr"),
+                "--threads", "1")  # fmt: skip
+        assert r.exit_code == 0, r.output
+    r = run("eval", str(outs), "-o", str(tmp_path / "rep"))
+    assert r.exit_code == 0, r.output
+    assert "ESTIMATED without a reference" in r.stdout
+    rows = json.loads((tmp_path / "rep" / "estimate.json").read_text(encoding="utf-8"))
+    rows = rows["rows"] if isinstance(rows, dict) else rows
+    methods = {row["method"]: row for row in rows}
+    assert {"cross-bilateral", "nlm", "noisy"} <= set(methods)
+    for m in ("cross-bilateral", "nlm"):
+        assert methods[m]["relmse_estimated"] > 0 and methods[m]["estimated"] is True
+    # the noisy input's error is estimated above both denoisers'
+    assert methods["noisy"]["relmse_estimated"] > methods["nlm"]["relmse_estimated"]
+
+
+def test_eval_without_ref_and_without_estimates_is_refused(tmp_path: Path) -> None:
+    src = _noisy_with_halves(tmp_path / "in.exr")
+    out = tmp_path / "plain.exr"
+    assert run("denoise", str(src), "-m", "cross-bilateral", "-o", str(out)).exit_code == 0
+    r = run("eval", str(out), "-o", str(tmp_path / "rep"))
+    assert r.exit_code == 2 and "Missing option '--ref'" in r.stderr
+    assert "--estimate-error" in r.stderr
+    assert not (tmp_path / "rep").exists()
