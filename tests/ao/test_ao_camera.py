@@ -99,3 +99,29 @@ def test_inputs_without_a_camera_need_fov_and_radius():
     assert "radius" in (gtao.accepts(fb, {"fov": "60"}) or "")
     out = gtao.run(fb, gtao.resolve_params({"fov": "60", "radius": "0.5"}), torch.device("cpu"))
     assert out.min() > 0.9  # normals rebuilt from depth
+
+
+def test_view_space_conventions_match_the_renderers_positions():
+    # The fixture is a real mcdenoise render (tests/ao/test_ao_render.py): its world positions
+    # must be what depth + camera rebuild (fov axis, Mitsuba's x-left camera frame, y down,
+    # depth along the ray). A pixel's buffers average its samples, so the rebuilt point of
+    # a pixel-centre ray lies within about a pixel footprint (z / f, here ~0.08) of it.
+    from pathlib import Path
+
+    from mcdenoise.ao.geometry import view_gbuffer
+    from mcdenoise.io import load_buffers
+
+    fb = load_buffers(Path(__file__).resolve().parent / "ao_contact_48x36.exr")
+    cam = camera_from_attributes(fb.attributes)
+    assert cam is not None and cam.ao_radius == 0.6
+    h, w = fb.shape
+    rot = torch.as_tensor(cam.world_to_view(), dtype=torch.float32)
+    g = view_gbuffer(fb["depth"], cam.focal_pixels(w, h))
+    world = torch.einsum("ji,jhw->ihw", rot, g.position) + torch.as_tensor(
+        cam.to_world[:3, 3], dtype=torch.float32
+    ).view(3, 1, 1)
+    err = (world - fb["position"]).norm(dim=0)[g.valid]
+    assert err.median() < 0.03 and err.quantile(0.9) < 0.06
+    # the renderer's normals, rotated into view space, agree with those rebuilt from depth
+    g2 = view_gbuffer(fb["depth"], g.focal, normal=fb["normal"], world_to_view=rot)
+    assert (g2.normal * g.normal).sum(0)[g.valid].median() > 0.98
