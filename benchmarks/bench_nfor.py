@@ -13,7 +13,9 @@ and prints per spp the geometric mean over images and each method's ratio to OID
 unless ``--threads``). Images without albedo are skipped (kpcn and the shipped Kalantari
 models need it). ``--ref-dir`` reads the references from another folder with the same image
 ids (a set re-rendered with halves can reuse the 2048-spp references of
-``data/generated/heldout``); ``--images`` picks images by name, ``--limit`` caps their count.
+``data/generated/heldout``); ``--images`` picks images by name, ``--limit`` caps their count. ``--from-log LOG ...`` prints
+the summary of the per-image lines of earlier runs' output (runs cut short, or split over
+processes) without running anything.
 
     python benchmarks/bench_nfor.py [--heldout DIR] [--ref-dir DIR] [--spp 4,16,64]
         [--images a,b] [--limit N] [--threads 1] [--json OUT]
@@ -47,6 +49,43 @@ def run_nfor(b) -> tuple[torch.Tensor, float]:
     return out, time.perf_counter() - t0
 
 
+def parse_logs(paths: list[Path]) -> dict[str, dict[str, float]]:
+    """The per-image rows printed by earlier runs: ``IMAGE SPP spp  name value ...``."""
+    rows: dict[str, dict[str, float]] = {}
+    for path in paths:
+        for line in path.read_text().splitlines():
+            parts = line.split("(")[0].split()
+            if len(parts) < 5 or parts[2] != "spp":
+                continue
+            vals = parts[3:]
+            rows[f"{parts[0]}@{parts[1]}"] = {
+                vals[i]: float(vals[i + 1]) for i in range(0, len(vals) - 1, 2)
+            }
+    return rows
+
+
+def summary(rows: dict[str, dict[str, float]], spps: list[int], n_images: int) -> None:
+    """Geometric means per spp and ratios to OIDN (per image, then the geometric mean)."""
+    labels = [k for k in ("noisy", "nfor", *PEERS) if all(k in r for r in rows.values())]
+    print(f"\nrelMSE (eps 0.01, linear RGB), geometric mean over {n_images} images; / oidn:")
+    print(f"{'spp':>4}{'images':>7}" + "".join(f"{k:>15}" for k in labels))
+    for s in spps:
+        sel = [r for k, r in rows.items() if k.endswith(f"@{s}")]
+        if not sel:
+            continue
+        print(
+            f"{s:>4}{len(sel):>7}"
+            + "".join(f"{geometric_mean([r[k] for r in sel]):>15.5f}" for k in labels)
+        )
+        if "oidn" in labels:
+            print(
+                " " * 11
+                + "".join(
+                    f"{geometric_mean([r[k] / r['oidn'] for r in sel]):>15.3f}" for k in labels
+                )
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--heldout", type=Path, default=REPO / "data/generated/heldout-halves")
@@ -56,7 +95,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--from-log", type=Path, nargs="+", default=None)
     args = ap.parse_args(argv)
+    if args.from_log:
+        rows = parse_logs(args.from_log)
+        summary(
+            rows, sorted({int(k.split("@")[1]) for k in rows}), len({k.split("@")[0] for k in rows})
+        )
+        return 0
     torch.set_num_threads(args.threads)
     spps = {int(s) for s in args.spp.split(",")}
     peers = [p for p in PEERS if get_method(p).unavailable() is None]
@@ -98,21 +144,7 @@ def main(argv: list[str] | None = None) -> int:
                 + f"  (nfor {sec:.1f} s)",
                 flush=True,
             )
-    labels = ["noisy", "nfor", *peers]
-    print(f"\nrelMSE (eps 0.01, linear RGB), geometric mean over {len(kept)} images; / oidn:")
-    print(f"{'spp':>4}" + "".join(f"{k:>15}" for k in labels))
-    for s in sorted(spps):
-        sel = [r for k, r in rows.items() if k.endswith(f"@{s}")]
-        if not sel:
-            continue
-        print(f"{s:>4}" + "".join(f"{geometric_mean([r[k] for r in sel]):>15.5f}" for k in labels))
-        if "oidn" in peers:
-            print(
-                " " * 4
-                + "".join(
-                    f"{geometric_mean([r[k] / r['oidn'] for r in sel]):>15.3f}" for k in labels
-                )
-            )
+    summary(rows, sorted(spps), len(kept))
     print(
         f"\nseconds per megapixel (median, {args.threads} thread(s)): "
         + ", ".join(f"{k} {statistics.median(v):.1f}" for k, v in secs.items())

@@ -49,6 +49,7 @@ from torch import Tensor
 from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
 from mcdenoise.filters.box import box_mean
+from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import relative_squared_error, relmse_map
 from mcdenoise.methods.selection import (
@@ -57,7 +58,6 @@ from mcdenoise.methods.selection import (
     has_halves,
     pick,
     shifted_offsets,
-    two_buffer_error,
 )
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
@@ -148,7 +148,7 @@ def halves_rows(
     def estimate(a: Tensor, bb: Tensor, va: Tensor, vb: Tensor) -> Tensor:
         return torch.cat(
             [
-                (two_buffer_error(oa, ob, a, bb, va, vb) / den).mean(1, keepdim=True)
+                (cross_error(oa, ob, a, bb, va, vb) / den).mean(1, keepdim=True)
                 for oa, ob in zip(outs_a, outs_b, strict=True)
             ],
             1,

@@ -12,7 +12,8 @@ al. 2016): run candidate ``k`` on each half and judge each result by the other h
 ``D_k(A)`` does not depend on ``B``'s noise, so ``E[(D_k(A) - B)²] = E[(D_k(A) - μ)²] +
 Var(B)``. With the same for ``D_k(B)`` and the identity
 ``((a + b)/2 - μ)² = ((a - μ)² + (b - μ)²)/2 - (a - b)²/4``, the per-pixel estimate
-(:func:`two_buffer_error`)::
+(:func:`~mcdenoise.filters.two_buffer.cross_error`, shared with ``mcdenoise eval``'s
+reference-free estimate)::
 
     e_k = ((D_k(A) - B)² - Var B + (D_k(B) - A)² - Var A) / 2 - (D_k(A) - D_k(B))² / 4
 
@@ -45,6 +46,7 @@ from torch import Tensor
 from mcdenoise.errors import InputError
 from mcdenoise.filters.box import box_mean
 from mcdenoise.filters.parallel import single_threaded_ops
+from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.prep.kalantari import item_features, prepare_for_model
@@ -103,25 +105,6 @@ def half_buffers(buffers: FeatureBuffers, half: str) -> FeatureBuffers:
     spp = buffers.spp
     half_spp = None if spp is None else max(1, (spp + (1 if half == "a" else 0)) // 2)
     return FeatureBuffers(out, spp=half_spp, source=buffers.source)
-
-
-def two_buffer_error(
-    out_a: Tensor, out_b: Tensor, a: Tensor, b: Tensor, var_a: Tensor, var_b: Tensor
-) -> Tensor:
-    """Per-pixel estimate of the squared error of ``(out_a + out_b) / 2`` (module docstring).
-
-    Args:
-        out_a, out_b: ``(B, C, H, W)`` a filter's output on half ``A`` and on half ``B``.
-        a, b: ``(B, C, H, W)`` the halves themselves (linear, the same space as the outputs).
-        var_a, var_b: ``(B, 1 or C, H, W)`` their variances of the mean.
-
-    Returns:
-        ``(B, C, H, W)``; unbiased per pixel (it may be negative), noisy: average it over a
-        region before comparing.
-    """
-    mse_a = (out_a - b).square() - var_b
-    mse_b = (out_b - a).square() - var_a
-    return (mse_a + mse_b) * 0.5 - (out_a - out_b).square() * 0.25
 
 
 def choose(errors: Tensor, radius: int) -> Tensor:
@@ -187,7 +170,7 @@ def select_filtered(
     errors, halves, fulls = [], [], []
     for k in range(n_candidates):
         oa, ob = filter_fn(ha, k), filter_fn(hb, k)
-        e = two_buffer_error(oa, ob, a, b, var_a, var_b) / den
+        e = cross_error(oa, ob, a, b, var_a, var_b) / den
         errors.append(e.mean(dim=1, keepdim=True))
         if output == "halves":
             halves.append((oa + ob) * 0.5)
@@ -314,5 +297,4 @@ __all__ = [
     "select_kalantari",
     "shifted_offsets",
     "shifts",
-    "two_buffer_error",
 ]

@@ -8,13 +8,13 @@ import pytest
 import torch
 from torch.nn import functional as F
 
+from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io.buffers import FeatureBuffers, sanitize
 from mcdenoise.methods.kalantari import denoise_kalantari, model_for
 from mcdenoise.methods.selection import (
     half_buffers,
     select_filtered,
     select_kalantari,
-    two_buffer_error,
 )
 
 
@@ -48,7 +48,7 @@ def test_the_two_buffer_estimate_is_unbiased(noise: str) -> None:
     for seed in range(12):
         (a, va), (b, vb) = _noisy_halves(clean, noise, seed)
         oa, ob = _blur(a, 2), _blur(b, 2)
-        est.append(float(two_buffer_error(oa, ob, a, b, va, vb).mean()))
+        est.append(float(cross_error(oa, ob, a, b, va, vb).mean()))
         true.append(float(((oa + ob) / 2 - clean).square().mean()))
     e, t = sum(est) / len(est), sum(true) / len(true)
     assert abs(e - t) < 0.15 * t, (e, t)
