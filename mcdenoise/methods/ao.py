@@ -18,6 +18,9 @@ Parameters shared by the four (``-p key=value``):
     renderers); overrides the recorded one when given. Without a camera-to-world matrix the
     world-space normals cannot be rotated into view space, so the normals are rebuilt from
     depth (:func:`mcdenoise.ao.geometry.normals_from_positions`).
+``fov_axis``
+    ``x`` (horizontal, mcdenoise's renders) or ``y`` (vertical) for ``fov``; default: the
+    recorded one, else ``x``.
 ``falloff``
     fraction of the radius over which occluders fade out; 0 (default) is the reference's step.
 ``blur``
@@ -45,7 +48,13 @@ from mcdenoise.method import Method
 #: Priority of the AO estimators: below every denoiser (they never denoise colour).
 PRIORITY = -10
 
-_COMMON: dict[str, Any] = {"radius": None, "fov": None, "falloff": 0.0, "blur": True}
+_COMMON: dict[str, Any] = {
+    "radius": None,
+    "fov": None,
+    "fov_axis": "",
+    "falloff": 0.0,
+    "blur": True,
+}
 
 
 def camera_for(buffers: FeatureBuffers, params: Mapping[str, Any]) -> CameraInfo:
@@ -57,14 +66,15 @@ def camera_for(buffers: FeatureBuffers, params: Mapping[str, Any]) -> CameraInfo
     where = str(buffers.source or "input")
     cam = camera_from_attributes(buffers.attributes, where)
     fov, radius = params.get("fov"), params.get("radius")
+    axis = params.get("fov_axis") or None
     if cam is None:
         if fov is None:
             raise InputError(
                 f"{where}: no camera recorded (mcdenoise:camera); give the field of view "
                 "with -p fov=<degrees, horizontal> (and -p radius=<AO radius>)"
             )
-        cam = CameraInfo(fov=float(fov))
-    cam = cam.with_overrides(fov=fov, ao_radius=radius)
+        cam = CameraInfo(fov=float(fov), fov_axis=axis or "x")
+    cam = cam.with_overrides(fov=fov, fov_axis=axis, ao_radius=radius)
     if cam.ao_radius is None:
         raise InputError(f"{where}: no AO radius recorded; give it with -p radius=<scene units>")
     return cam

@@ -125,3 +125,18 @@ def test_view_space_conventions_match_the_renderers_positions():
     # the renderer's normals, rotated into view space, agree with those rebuilt from depth
     g2 = view_gbuffer(fb["depth"], g.focal, normal=fb["normal"], world_to_view=rot)
     assert (g2.normal * g.normal).sum(0)[g.valid].median() > 0.98
+
+
+def test_fov_axis_option_for_a_vertical_field_of_view():
+    fb = _ao_buffers(with_camera=False)  # 32 wide, 24 high, horizontal fov 60
+    gtao = next(m for m in METHODS if m.name == "gtao")
+    vertical = 2 * math.degrees(math.atan(math.tan(math.radians(30)) * 24 / 32))
+    a = gtao.run(fb, gtao.resolve_params({"fov": "60", "radius": "0.5"}), torch.device("cpu"))
+    b = gtao.run(
+        fb,
+        gtao.resolve_params({"fov": str(vertical), "fov_axis": "y", "radius": "0.5"}),
+        torch.device("cpu"),
+    )
+    assert torch.allclose(a, b, atol=1e-4)
+    with pytest.raises(InputError):
+        gtao.run(fb, gtao.resolve_params({"fov": "60", "fov_axis": "z", "radius": "0.5"}), "cpu")
