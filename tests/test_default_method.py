@@ -371,8 +371,13 @@ def test_method_all_skips_a_refusing_method_with_its_reason(tmp_path: Path) -> N
     outcomes = list(denoise_paths([path], tmp_path / "out", "all", device="cpu", progress=False))
     skipped = {o.job.method.name: o.skipped for o in outcomes if o.skipped is not None}
     done = {o.job.method.name for o in outcomes if o.result is not None}
-    assert set(skipped) == {"kalantari-xbf", "kalantari-nlm"}
-    assert all("position_var" in r and "\n" not in r for r in skipped.values())
+    assert all("\n" not in r for r in skipped.values())
+    # the AO estimators need the camera this plain file does not record; nfor needs halves
+    ao = {"ssao", "hbao", "alchemy", "gtao"}
+    assert all("no camera recorded" in skipped[k] for k in ao)
+    assert all("color_a" in r for k, r in skipped.items() if k == "nfor")
+    assert set(skipped) - ao - {"nfor"} == {"kalantari-xbf", "kalantari-nlm"}
+    assert all("position_var" in skipped[k] for k in ("kalantari-xbf", "kalantari-nlm"))
     assert {"nlm", "cross-bilateral"} <= done
     assert all(o.result.output.is_file() for o in outcomes if o.result is not None)
 
