@@ -9,6 +9,11 @@ the manifest (the spec's camera and ``render.ao_radius``).
 
     python benchmarks/bench_ao.py DIR [--threads 1] [--repeat 2]
     python benchmarks/bench_ao.py --speed 512 [--threads 1]
+    python benchmarks/bench_ao.py DIR --random-ao 6 --seed 3000   # render them first
+
+``--random-ao N`` first renders (into DIR, 128×96, 4/16/64 spp, 1024-spp references) the
+first N scenes of the random generator with ``--seed`` whose archetype is ``ao``: a held-out
+set no AO parameter was chosen on.
 
 ``--speed N`` times the four methods alone on a synthetic N×N G-buffer (a floor and two
 walls seen from a camera pitched 25° down) and prints CPU ms per frame and per megapixel.
@@ -92,10 +97,32 @@ def speed(size: int, repeat: int) -> None:
         print(f"{name:<8} {1000 * best:8.0f} ms  {1000 * best / mp:8.0f} ms/MP")
 
 
+def render_random_ao(folder: Path, count: int, seed: int) -> None:
+    """Render the first ``count`` random scenes of data set ``seed`` with archetype ``ao``."""
+    from mcdenoise.render.config import RenderConfig
+    from mcdenoise.render.generate import generate
+    from mcdenoise.render.jobs import jobs_from_specs
+    from mcdenoise.render.random_scenes import random_scene
+
+    specs = []
+    index = 0
+    while len(specs) < count and index < 100 * count:
+        scene = random_scene(seed, index)
+        if scene.archetype == "ao":
+            specs.append(scene.spec)
+        index += 1
+    config = RenderConfig(
+        out=folder, width=128, height=96, spp=(4, 16, 64), ref_spp=1024, progress=False
+    )
+    generate(jobs_from_specs(specs), config)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folder", type=Path, nargs="?")
     ap.add_argument("--speed", type=int, metavar="N", help="time on a synthetic NxN G-buffer")
+    ap.add_argument("--random-ao", type=int, metavar="N", help="render N random AO scenes first")
+    ap.add_argument("--seed", type=int, default=3000, help="data set seed of --random-ao")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=2, help="timed runs per method (best kept)")
     args = ap.parse_args()
@@ -105,6 +132,8 @@ def main() -> None:
         return
     if args.folder is None:
         ap.error("give a render folder or --speed N")
+    if args.random_ao:
+        render_random_ao(args.folder, args.random_ao, args.seed)
     manifest = json.loads((args.folder / "manifest.json").read_text())
     print(
         f"threads {args.threads}; SSIM and relMSE against the reference; ms best of {args.repeat}"
