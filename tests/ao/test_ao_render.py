@@ -1,6 +1,6 @@
 """The AO estimators on a real (tiny) AO render, and the ray-traced estimator at the corner.
 
-``ao_contact_48x36.exr`` is ``mcdenoise render data/scenes/ao_contact.toml --res 48x36 --spp 4
+``ao_contact_48x36.exr`` is ``mcdenoise render data/scenes/ao/ao_contact.toml --res 48x36 --spp 4
 --ref-spp 1024`` (part spp4, buffers color/depth/normal/position, the ``mcdenoise:camera`` header kept),
 ``ao_contact_48x36_ref.exr`` its reference colour. Measured (1 thread): SSIM / relMSE ssao
 0.848 / 0.0396, hbao 0.857 / 0.0210, alchemy 0.829 / 0.0128, gtao 0.869 / 0.0204; the 4-spp
