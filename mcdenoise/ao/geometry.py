@@ -223,8 +223,11 @@ def interleaved_noise(height: int, width: int, device: torch.device, tile: int =
     """Two per-pixel numbers in [0, 1), ``(2, H, W)``, repeating every ``tile`` × ``tile``
     pixels (interleaved sampling, the 4×4 rotation texture of Crytek's SSAO and of HBAO): each
     of the ``tile²`` pixels of a tile gets its own stratum, so a ``tile``-wide blur sees every
-    rotation once. The second number is an R2-sequence offset of the first (XeGTAO draws its
-    slice and step noise from R-sequences)."""
+    rotation once. The first is the pixel's Bayer stratum ``(b + 0.5) / tile²``; the second,
+    ``frac(α₁ · first + α₂ b / tile²)`` with the R2 constants ``α₁ = 0.7548…``, ``α₂ = 0.5698…``,
+    takes ``tile²`` distinct values in another order, so the jitter of steps (the second) is not
+    aligned with the rotation (the first); XeGTAO likewise draws slice and step noise from
+    R-sequences."""
     k = tile * tile
     order = torch.tensor(_bayer(tile), dtype=torch.float32, device=device)  # (tile, tile)
     first = (order + 0.5) / k
