@@ -35,12 +35,16 @@ What the user gets, and the estimate of it
     is unbiased for the squared error of ``D̄`` with no other assumption. The variance term
     ``½(Var A + Var B)`` need not come from the variance buffers: ``E[(A − B)²] = Var A +
     Var B`` for any two independent unbiased halves, so :func:`squared_error` subtracts
-    ``½(A − B)²`` instead, which needs no variance estimate at all and is the more precise of
-    the two (``python benchmarks/bench_estimate.py synthetic`` prints both: the spread of the
-    image-level estimate over trials is lower by up to a half on the identity and by 10-40 %
-    on the blurs under heavy tails, docs/results/estimate.md). For the identity (the noisy
-    input itself) it is ``¼(A − B)²``, whose mean is ``Var x`` exactly. The output most users
-    keep is ``D`` on the full buffer, ``D(x)``, ``x = (A + B)/2``. Writing
+    ``½(A − B)²`` instead, which needs no variance estimate at all (an input without
+    variance buffers can be judged). Which of the two spreads less depends on the filter and
+    the tails: on the synthetic images of ``python benchmarks/bench_estimate.py synthetic``
+    the difference form halves the spread for the identity and is lower for most blurs, but
+    not for strong blurs under log-normal noise (docs/results/estimate.md); averaging both
+    estimates of the common term was never the worst there and is left to measure on renders.
+    For the identity (the noisy input itself) it is ``¼(A − B)²``, whose mean is ``Var x``
+    exactly.
+
+    The output most users keep is ``D`` on the full buffer, ``D(x)``, ``x = (A + B)/2``. Writing
     ``MSE = bias² + variance``: ``ê`` estimates ``β² + Var(D_A)/2`` (the bias of a half-sample
     filter and its variance halved), which is ``MSE(D(x))`` where the filter's bias does not
     change between ``spp/2`` and ``spp`` and its output variance falls as ``1/spp`` (exact for
