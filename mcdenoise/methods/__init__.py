@@ -55,7 +55,17 @@ measurements behind this order are in ``docs/results/methods-notes.md``.
 from __future__ import annotations
 
 from mcdenoise.method import Method
-from mcdenoise.methods import ao, cross_bilateral, kalantari, kpcn, nlm, oidn, svgf
+from mcdenoise.methods import (
+    ao,
+    cross_bilateral,
+    kalantari,
+    kpcn,
+    kpcn_temporal,
+    nfor,
+    nlm,
+    oidn,
+    svgf,
+)
 
 
 def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
@@ -68,6 +78,8 @@ def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
         (kpcn.METHOD, ()),
         (oidn.METHOD, ()),
         (svgf.METHOD, ()),
+        (nfor.METHOD, ()),  # NFOR, needs half buffers (issue 24, H4)
+        (kpcn_temporal.METHOD, ()),  # temporal KPCN (Vogels 2018; issue 23, H2)
         *((m, ()) for m in ao.METHODS),  # AO estimators (issue 25, H5)
     ]
 
