@@ -30,12 +30,14 @@ PACKAGE = REPO / "mcdenoise"
 #: Every unit a rule can name; each rule below lists what a unit must NOT import.
 _UNITS = {
     *("io", "filters", "prep", "models", "methods", "train", "eval", "experiments", "render"),
-    *("losses", "registry", "denoise", "modelfile"),
+    *("ao", "losses", "registry", "denoise", "modelfile"),
 }
 
 FORBIDDEN: dict[str, set[str]] = {
     "io": _UNITS - {"io", "modelfile"},
     "filters": _UNITS - {"filters", "losses", "modelfile"},
+    # screen-space AO estimators: tensor operators on a G-buffer, like filters
+    "ao": _UNITS - {"ao", "filters"},
     "models": _UNITS - {"models", "filters", "losses", "modelfile"},
     "modelfile": _UNITS - {"modelfile", "io", "losses"},
     "losses": {"io", "prep", "models", "methods", "train", "eval", "experiments", "render"},
