@@ -48,9 +48,7 @@ from mcdenoise.models.weights import shipped_model_path
 from mcdenoise.registry import get_method
 from mcdenoise.threads import apply_threads
 
-DEFAULT_METHODS = (
-    "kpcn-temporal,kpcn-temporal:window=3,kpcn-temporal:window=3;mode=causal,kpcn,oidn,svgf,nlm"
-)
+DEFAULT_METHODS = "kpcn-temporal,kpcn-temporal:window=3,kpcn,oidn,svgf,nlm"
 KT = "kpcn-temporal"
 
 
@@ -159,8 +157,13 @@ def main() -> None:
     scores: dict[str, list[dict[str, float]]] = {s: [] for s in specs}
     seconds: dict[str, list[float]] = {s: [] for s in specs}
     t0 = time.time()
+    used = []
     for seq in seqs:
         frames, refs = _load(seq, args.part)
+        if "albedo" not in frames[0]:  # an AO render: kpcn, kpcn-temporal and OIDN need albedo
+            print(f"{seq.name}: skipped (no albedo: an AO render)", flush=True)
+            continue
+        used.append(seq)
         for spec in specs:
             name, params = _parse(spec)
             if name == KT and args.temporal_model:
@@ -176,7 +179,7 @@ def main() -> None:
                     flush=True,
                 )
     print(
-        f"\n{len(seqs)} held-out sequences of {args.data} ({args.part}), geometric means; "
+        f"\n{len(used)} held-out sequences of {args.data} ({args.part}), geometric means; "
         f"{time.time() - t0:.0f} s, load average {os.getloadavg()[0]:.1f}\n"
     )
     print(f"{'method':36s} {'relMSE':>9s} {'temporal':>9s} {'ghosting':>9s} {'s/frame':>8s}")
@@ -206,7 +209,7 @@ def main() -> None:
     ratio("svgf", "nlm", "trel", 1.0, below=False)
     ratio(KT, "kpcn", "ghost", 1.2)
     if args.time_size:
-        timing(seqs[0], args.part, args.time_size)
+        timing(used[0], args.part, args.time_size)
 
 
 if __name__ == "__main__":
