@@ -81,6 +81,12 @@ RECORDED_SPEED: Mapping[str, tuple[float, float]] = {
     # (bench_threads.py --calibrate --methods kpcn-temporal,kpcn at load 11, 2026-11-26:
     # 0.118 + 13.9 s/MP against kpcn's 0.332 + 23.6 in the same run)
     "kpcn-temporal": (0.0189, 1.48),
+    # AO estimators: CPU time of benchmarks/bench_ao.py --speed 32/512 --repeat 3/2, 1 thread,
+    # load ~13 (bench_threads' lit sample has no camera: they refuse it)
+    "ssao": (0.011, 2.01),
+    "hbao": (0.012, 2.37),
+    "alchemy": (0.005, 1.14),
+    "gtao": (0.012, 3.31),
 }
 
 _ENV_POLICY = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
