@@ -15,6 +15,7 @@ from mcdenoise.models.kpcn import KpcnModel, new_model
 from mcdenoise.models.temporal import (
     TemporalKpcn,
     apply_joint,
+    frame_log_softmax,
     from_single_frame,
     joint_kernel_softmax,
     tap_valid,
@@ -198,3 +199,19 @@ def test_basic_source_runs(base, crop) -> None:
     with torch.no_grad():
         out = m.denoise_window([basic, basic, basic], [ones, ones, ones], 1, "basic")
     assert out.shape == crop["color"].shape and torch.isfinite(out).all()
+
+
+def test_a_neighbour_weighs_only_its_kernels_mass_on_valid_pixels() -> None:
+    """Each frame's logits are normalised over the in-image taps, then invalid taps are
+    dropped: a neighbour whose (uniform 3×3) kernel finds 1 valid tap of 9 gets 1/9 of the
+    centre frame's weight there, not an equal share piled on that one tap."""
+    k, h, w = 3, 5, 5
+    z = torch.zeros(1, k * k, h, w)
+    ones = torch.ones(1, 1, h, w)
+    sparse = torch.zeros(1, 1, h, w)
+    sparse[..., 1, 1] = 1  # the neighbour is valid at one pixel only
+    in_image = tap_valid(ones, k)
+    logits = [frame_log_softmax(z, in_image), frame_log_softmax(z, in_image)]
+    wts = joint_kernel_softmax(logits, [in_image, tap_valid(sparse, k)])
+    share = float(wts[1][0, :, 2, 2].sum())  # pixel (2, 2) sees (1, 1) through one tap
+    assert share == pytest.approx((1 / 9) / (1 + 1 / 9), rel=1e-5)
