@@ -307,6 +307,7 @@ def heldout_records(
             fb, _ = sanitize(load_buffers(data / img["files"]["noisy"], part=f"spp{level}"))
             ha, hb = split_halves(fb)
             a, b = fb["color_a"].double(), fb["color_b"].double()
+            va, vb = fb["color_a_var"].double(), fb["color_b_var"].double()
             outs: dict = {}
             for method, key in zip(methods, keys):
                 t0 = time.perf_counter()
@@ -327,8 +328,13 @@ def heldout_records(
                 est = estimate_from_outputs(out_a, out_b, fb, output=full)
                 est_mean = estimate_from_outputs(out_a, out_b, fb)
                 sq = squared_error(out_a.double(), out_b.double(), a, b)
+                # the common term from both the difference and the halves' variances
+                sq_avg = sq + 0.25 * (a - b).square() - 0.25 * (va + vb)
 
                 def rel(d, sq=sq):
+                    return max(float((sq / (d.square() + RELMSE_EPS)).mean()), 0.0)
+
+                def rel_avg(d, sq=sq_avg):
                     return max(float((sq / (d.square() + RELMSE_EPS)).mean()), 0.0)
 
                 true, true_corr = _relmse_terms(full, ref, ref_var)
@@ -339,6 +345,8 @@ def heldout_records(
                     "estimate_halves_mean": est_mean.relmse,
                     "estimate_shared": rel(shared) if shared is not None else est.relmse,
                     "estimate_oracle": rel(ref),
+                    "estimate_avg": rel_avg(full.double()),
+                    "estimate_avg_oracle": rel_avg(ref),
                     "true": true, "true_corrected": true_corr,
                     "halves_mean_true": mean_true, "halves_mean_corrected": mean_corr,
                     "seconds": round(seconds, 3),
@@ -450,14 +458,18 @@ def heldout(args: argparse.Namespace) -> int:
         )
         if args.json:
             Path(args.json).write_text(json.dumps({"records": records}, indent=1))
+    have = set.intersection(*(set(r) for r in records)) if records else set()
     for truth, est in (
         ("true_corrected", "estimate"),
         ("true", "estimate"),
         ("true_corrected", "estimate_shared"),
         ("true_corrected", "estimate_oracle"),
+        ("true_corrected", "estimate_avg"),
+        ("true_corrected", "estimate_avg_oracle"),
         ("halves_mean_corrected", "estimate_halves_mean"),
     ):
-        _print_analysis(analyse(records, truth, est))
+        if est in have:
+            _print_analysis(analyse(records, truth, est))
     return 0
 
 
