@@ -1,7 +1,7 @@
 """Screen-space AO against the ray-traced reference: SSIM, relMSE and milliseconds per method.
 
 Reads a render folder of AO scenes (``mcdenoise render <ao specs> -o DIR``), runs ``ssao``,
-``hbao``, ``alchemy`` and ``gtao`` on the lowest spp level's G-buffer (they ignore the
+``hbao``, ``alchemy``, ``gtao`` and ``nnao`` (``--nnao-model``: default the shipped one) on the lowest spp level's G-buffer (they ignore the
 colour, so the level does not matter) and prints, per image and method, SSIM and relMSE
 against ``DIR/ref/<id>.exr`` and the wall time; the noisy ray-traced levels are listed as the
 peer in the same run. Renders made before the camera was recorded in the header get it from
@@ -13,9 +13,10 @@ the manifest (the spec's camera and ``render.ao_radius``).
 
 ``--random-ao N`` first renders (into DIR, 128×96, 4/16/64 spp, 1024-spp references) the
 first N scenes of the random generator with ``--seed`` whose archetype is ``ao``: a held-out
-set no AO parameter was chosen on.
+set no AO parameter was chosen on; with ``--render-only`` it stops there (the nnao training
+set of ``data/recipes/nnao.md``).
 
-``--speed N`` times the four methods alone on a synthetic N×N G-buffer (a floor and two
+``--speed N`` times the five methods alone on a synthetic N×N G-buffer (a floor and two
 walls seen from a camera pitched 25° down) and prints CPU ms per frame and per megapixel.
 
 Times are for the image size rendered; ``ms/MP`` scales them to one megapixel (the
@@ -40,6 +41,9 @@ from mcdenoise.eval.metrics import relmse, ssim
 from mcdenoise.io import load_buffers
 from mcdenoise.io.camera import CAMERA_ATTR
 from mcdenoise.methods.ao import METHODS
+from mcdenoise.methods.nnao import METHOD as NNAO
+from mcdenoise.methods.nnao import load_nnao, nnao
+from mcdenoise.models.weights import SHIPPED
 from mcdenoise.render.scenes import camera_metadata
 from mcdenoise.render.spec import Camera
 
@@ -81,13 +85,15 @@ def synthetic_gbuffer(size: int) -> ViewGBuffer:
     return view_gbuffer(depth, f, normal=normal, world_to_view=rot.T)
 
 
-def speed(size: int, repeat: int) -> None:
+def speed(size: int, repeat: int, nnao_model: str = SHIPPED) -> None:
     g = synthetic_gbuffer(size)
     mp = size * size / 1e6
     print(
         f"synthetic {size}x{size}, {torch.get_num_threads()} thread(s), CPU time best of {repeat}"
     )
-    for name, estimator in ESTIMATORS.items():
+    model = load_nnao(nnao_model)
+    estimators = {**ESTIMATORS, "nnao": lambda g, r: nnao(model, g, r)}
+    for name, estimator in estimators.items():
         estimator(g, 0.5)  # untimed
         best = float("inf")
         for _ in range(max(1, repeat)):
@@ -123,17 +129,23 @@ def main() -> None:
     ap.add_argument("--speed", type=int, metavar="N", help="time on a synthetic NxN G-buffer")
     ap.add_argument("--random-ao", type=int, metavar="N", help="render N random AO scenes first")
     ap.add_argument("--seed", type=int, default=3000, help="data set seed of --random-ao")
+    ap.add_argument(
+        "--render-only", action="store_true", help="stop after --random-ao (training sets)"
+    )
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=2, help="timed runs per method (best kept)")
+    ap.add_argument("--nnao-model", default=SHIPPED, help="nnao model file or run folder")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     if args.speed:
-        speed(args.speed, args.repeat)
+        speed(args.speed, args.repeat, args.nnao_model)
         return
     if args.folder is None:
         ap.error("give a render folder or --speed N")
     if args.random_ao:
         render_random_ao(args.folder, args.random_ao, args.seed)
+        if args.render_only:
+            return
     manifest = json.loads((args.folder / "manifest.json").read_text())
     print(
         f"threads {args.threads}; SSIM and relMSE against the reference; ms best of {args.repeat}"
@@ -161,8 +173,8 @@ def main() -> None:
         if CAMERA_ATTR not in fb.attributes:
             fb.attributes[CAMERA_ATTR] = _camera_from_manifest(record)
         mp = fb.width * fb.height / 1e6
-        for method in METHODS:
-            params = method.resolve_params(None)
+        for method in (*METHODS, NNAO):
+            params = method.resolve_params({"model": args.nnao_model} if method is NNAO else None)
             best, best_cpu = float("inf"), float("inf")
             for _ in range(max(1, args.repeat)):
                 t0, c0 = time.perf_counter(), time.process_time()

@@ -63,6 +63,7 @@ from mcdenoise.methods import (
     kpcn_temporal,
     nfor,
     nlm,
+    nnao,
     oidn,
     svgf,
 )
@@ -81,6 +82,7 @@ def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
         (nfor.METHOD, ()),  # NFOR, needs half buffers (issue 24, H4)
         (kpcn_temporal.METHOD, ()),  # temporal KPCN (Vogels 2018; issue 23, H2)
         *((m, ()) for m in ao.METHODS),  # AO estimators (issue 25, H5)
+        (nnao.METHOD, ()),  # learned AO estimator (Holden 2016; issue 25, H7)
     ]
 
 

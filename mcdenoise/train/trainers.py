@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.errors import InputError
-from mcdenoise.train import kalantari, kpcn, kpcn_temporal
+from mcdenoise.train import kalantari, kpcn, kpcn_temporal, nnao
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig, load_config
 from mcdenoise.train.dataset import LoadReport
@@ -56,6 +56,10 @@ def _train_kpcn(cfg: TrainConfig, out: str | Path, **kwargs: Any):
 
 def _train_kpcn_temporal(cfg: TrainConfig, out: str | Path, **kwargs: Any):
     return kpcn_temporal.train_kpcn_temporal(cfg, out, **kwargs)
+
+
+def _train_nnao(cfg: TrainConfig, out: str | Path, **kwargs: Any):
+    return nnao.train_nnao(cfg, out, **kwargs)
 
 
 _KALANTARI_KEYS = frozenset({"hidden", "passes", "regional", "guides"})
@@ -104,6 +108,12 @@ TRAINERS: tuple[Trainer, ...] = (
         "(Vogels 2018); --from a kpcn model",
         _train_kpcn_temporal,
         frozenset({"window", "temporal_mode", "temporal_weight", "trunk", "base", "augment"}),
+    ),
+    Trainer(
+        "nnao",
+        "per-pixel MLP predicting AO from a G-buffer neighbourhood (Holden 2016)",
+        _train_nnao,
+        frozenset({"hidden"}),
     ),
 )
 

@@ -22,6 +22,7 @@ def test_builtin_methods_are_listed_explicitly_with_their_aliases() -> None:
         "hbao",
         "alchemy",
         "gtao",
+        "nnao",
     ]
     assert all(isinstance(m, Method) for m, _ in table)
     assert dict((m.name, a) for m, a in table)["cross-bilateral"] == ("xbf", "cross_bilateral")

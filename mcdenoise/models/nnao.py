@@ -1,0 +1,160 @@
+"""NNAO: a per-pixel MLP that predicts ambient occlusion from a sampled G-buffer neighbourhood.
+
+Holden, Saito and Komura, "Neural Network Ambient Occlusion" (SIGGRAPH Asia 2016 technical
+briefs): for each pixel a fixed pattern of sample points around it is read from the
+G-buffer, their view-space position relative to the pixel and their normals form the input of
+a small fully connected network trained on ray-traced AO; at run time it is one shader pass
+(their network is evaluated with a few precomputed filters).
+
+This is the per-pixel MLP of the paper, not a convolutional equivalent. Why: the paper's
+point is that the sample pattern scales with the *projected AO radius* (``f r / z`` pixels),
+so the same weights see the same world-space neighbourhood at every depth; a convolution has a
+fixed pixel footprint and would have to learn every scale of the radius, from far less data
+than the 16 training images here give. The MLP with a radius-scaled pattern also has
+SSAO's cost structure (a few texture fetches per pixel plus a small matrix product), which is
+what the comparison with the screen-space methods asks for.
+
+Differences from the paper, and why:
+
+* Inputs per sample (``FEATURES_PER_SAMPLE`` = 7): the offset to the pixel's view-space
+  position divided by the AO radius and clamped to ``[-2, 2]`` (3), the sample's view-space
+  normal (3), and a 0/1 flag "a surface is there" (off screen / empty pixels give 0 for all
+  seven); plus the pixel's own normal (3). Holden feed depth differences and normals too; the
+  clamp keeps depth discontinuities (a far background behind a near edge) from giving inputs
+  far outside the training range.
+* The pattern is a Vogel (golden-angle) spiral of ``samples`` points in the screen-space disk
+  of the projected radius (Holden use a fixed random pattern; a spiral covers the disk evenly
+  with few points, as in McGuire's scalable AO).
+* Hidden layers and output: ReLU MLP (``hidden``), sigmoid output, so the AO is in ``[0, 1]``
+  for any input; the adapter writes 1 on empty pixels (where the ray-traced AO is 1).
+
+This module imports torch only: the G-buffer inputs are built by ``mcdenoise.methods.nnao``
+(with :mod:`mcdenoise.ao.geometry`), for both the method and the trainer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from mcdenoise.errors import InputError
+from mcdenoise.modelfile import load_weights, read_model_file, save_model
+
+FORMAT = "mcdenoise.nnao/1"
+#: Inputs per sample point: offset / radius (3), normal (3), surface present (1).
+FEATURES_PER_SAMPLE = 7
+#: Clamp of the offset / radius inputs (depth discontinuities).
+OFFSET_CLAMP = 2.0
+
+
+def input_channels(samples: int) -> int:
+    """Input size of a model with ``samples`` sample points (plus the pixel's normal)."""
+    return FEATURES_PER_SAMPLE * samples + 3
+
+
+def sample_pattern(samples: int) -> Tensor:
+    """The ``(samples, 2)`` screen-space offsets, in units of the projected AO radius: a Vogel
+    spiral, point ``k`` at radius ``sqrt((k + 0.5) / samples)`` and angle ``k`` golden angles."""
+    k = torch.arange(samples, dtype=torch.float32)
+    r = torch.sqrt((k + 0.5) / samples)
+    a = k * math.pi * (3.0 - math.sqrt(5.0))
+    return torch.stack([r * torch.cos(a), r * torch.sin(a)], dim=1)
+
+
+@dataclass
+class NnaoCard:
+    """What a model file records besides the weights.
+
+    Attributes:
+        samples: sample points per pixel (the input layout, :func:`input_channels`).
+        hidden: hidden layer sizes.
+        training: what it was trained on (filled by the trainer).
+    """
+
+    samples: int = 16
+    hidden: list[int] = field(default_factory=lambda: [32, 16])
+    training: dict[str, Any] = field(default_factory=dict)
+    format: str = FORMAT
+
+    def check(self, what: str = "model") -> None:
+        if self.samples < 1 or not self.hidden or any(h < 1 for h in self.hidden):
+            raise InputError(f"{what}: bad samples {self.samples} / hidden {self.hidden}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    @staticmethod
+    def from_dict(d: Mapping[str, Any], what: str = "model file") -> NnaoCard:
+        if d.get("format") != FORMAT:
+            raise InputError(f"{what}: format {d.get('format')!r} is not {FORMAT!r}")
+        try:
+            card = NnaoCard(
+                samples=int(d["samples"]),
+                hidden=[int(h) for h in d["hidden"]],
+                training=dict(d.get("training", {})),
+            )
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"{what}: incomplete model card ({err})") from None
+        card.check(what)
+        return card
+
+
+class NnaoModel(nn.Module):
+    """The MLP: ``forward(x)`` maps inputs ``(..., C)`` to AO ``(...)`` in ``[0, 1]``."""
+
+    def __init__(self, card: NnaoCard) -> None:
+        super().__init__()
+        card.check()
+        self.card = card
+        sizes = [input_channels(card.samples), *card.hidden]
+        layers: list[nn.Module] = []
+        for a, b in itertools.pairwise(sizes):
+            layers += [nn.Linear(a, b), nn.ReLU()]
+        layers.append(nn.Linear(sizes[-1], 1))
+        self.net = nn.Sequential(*layers)
+        # start at "unoccluded" (sigmoid(2) = 0.88): most pixels of an AO image are near 1
+        last = layers[-1]
+        assert isinstance(last, nn.Linear)
+        nn.init.constant_(last.bias, 2.0)
+
+    def forward(self, x: Tensor) -> Tensor:
+        # not-finite inputs (never produced by the input builder) must not leak NaN
+        x = torch.nan_to_num(x, nan=0.0, posinf=OFFSET_CLAMP, neginf=-OFFSET_CLAMP)
+        return torch.sigmoid(self.net(x)[..., 0])
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the model file atomically."""
+        save_model(self.card.to_dict(), self, path)
+
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> NnaoModel:
+        """Read a model file (or a run folder's ``model.pt``).
+
+        Raises:
+            CheckpointError: missing/truncated file. InputError: not an nnao model.
+        """
+        p, state = read_model_file(path)
+        model = NnaoModel(NnaoCard.from_dict(state["card"], what=str(p)))
+        load_weights(model, state["state"], p)
+        model.eval()
+        return model
+
+
+__all__ = [
+    "FEATURES_PER_SAMPLE",
+    "FORMAT",
+    "OFFSET_CLAMP",
+    "NnaoCard",
+    "NnaoModel",
+    "input_channels",
+    "sample_pattern",
+]

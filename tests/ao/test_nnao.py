@@ -1,0 +1,95 @@
+"""nnao (Holden et al. 2016): the model's range, the shipped weights on closed forms, the method
+on a real AO render.
+
+Measured with the shipped weights (1 thread): see the bounds' comments; the flat plane is
+the closed form "no occlusion" (AO 1), which the network must learn (its output is a sigmoid,
+it never reaches 1 exactly).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from ao_gbuffers import planes_gbuffer
+
+from mcdenoise.ao.geometry import view_gbuffer
+from mcdenoise.eval.metrics import relmse, ssim
+from mcdenoise.io import load_buffers
+from mcdenoise.methods.nnao import METHOD, load_nnao, nnao, nnao_inputs
+from mcdenoise.models.nnao import NnaoCard, NnaoModel, input_channels
+from mcdenoise.models.weights import shipped_model_path
+
+HERE = Path(__file__).resolve().parent
+RADIUS = 0.5
+#: Flat plane with the shipped weights: lowest allowed mean and minimum AO (measured: docstring).
+FLAT_MEAN, FLAT_MIN = 0.9, 0.8
+#: ao_contact_48x36 with the shipped weights: lowest SSIM, highest relMSE (measured: docstring).
+RENDER_SSIM, RENDER_RELMSE = 0.8, 0.06
+
+
+def _discontinuous_gbuffer():
+    # A floor, a floating square much nearer the camera (a depth jump), and sky.
+    g, _ = planes_gbuffer([((0, 1, 0), 1.0)], pitch=10, height=40, width=40)
+    depth = g.position.norm(dim=0)
+    depth[10:20, 12:22] = 0.4
+    depth[:, :3] = 0.0
+    return view_gbuffer(depth, g.focal)
+
+
+def test_inputs_are_finite_and_zero_on_empty_pixels():
+    g = _discontinuous_gbuffer()
+    x = nnao_inputs(g, RADIUS, 8)
+    assert x.shape == (input_channels(8), 40, 40)
+    assert torch.isfinite(x).all()
+    assert x[:, ~g.valid].eq(0).all()
+    assert x.abs().max() <= 2.0 + 1e-6  # offsets clamped, normals unit
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_untrained_model_output_is_in_unit_range_on_empty_pixels_and_edges(seed):
+    torch.manual_seed(seed)
+    model = NnaoModel(NnaoCard(samples=8, hidden=[16]))
+    for p in model.parameters():  # large weights: saturating outputs must stay in [0, 1]
+        torch.nn.init.normal_(p, std=5.0)
+    g = _discontinuous_gbuffer()
+    ao = nnao(model, g, RADIUS)
+    assert torch.isfinite(ao).all()
+    assert ((ao >= 0) & (ao <= 1)).all()
+    assert ao[:, :3].eq(1.0).all()
+    assert model(torch.full((4, input_channels(8)), float("nan"))).isfinite().all()
+
+
+def test_model_file_round_trips(tmp_path):
+    model = NnaoModel(NnaoCard(samples=4, hidden=[8, 4]))
+    model.save(tmp_path / "m.pt")
+    back = NnaoModel.load(tmp_path / "m.pt")
+    x = torch.rand(10, input_channels(4))
+    assert torch.equal(model(x), back(x))
+    assert back.card.hidden == [8, 4]
+
+
+needs_weights = pytest.mark.skipif(
+    not shipped_model_path("nnao").is_file(), reason="no shipped nnao weights"
+)
+
+
+@needs_weights
+@pytest.mark.parametrize("pitch", [30, 60])
+def test_shipped_weights_leave_a_flat_plane_unoccluded(pitch):
+    g, _ = planes_gbuffer([((0, 1, 0), 1.0)], pitch=pitch)
+    ao = nnao(load_nnao("shipped"), g, RADIUS)
+    assert ao[~g.valid].eq(1.0).all()
+    assert ao[g.valid].mean() > FLAT_MEAN and ao[g.valid].min() > FLAT_MIN
+
+
+@needs_weights
+def test_shipped_weights_on_a_real_ao_render():
+    fb = load_buffers(HERE / "ao_contact_48x36.exr")
+    ref = load_buffers(HERE / "ao_contact_48x36_ref.exr")["color"].numpy()
+    x = METHOD.run(fb, METHOD.resolve_params(None), torch.device("cpu")).numpy()
+    assert x.shape == ref.shape
+    assert np.isfinite(x).all() and x.min() >= 0 and x.max() <= 1
+    assert ssim(x, ref) > RENDER_SSIM and relmse(x, ref) < RENDER_RELMSE
