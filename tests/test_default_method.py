@@ -373,7 +373,7 @@ def test_method_all_skips_a_refusing_method_with_its_reason(tmp_path: Path) -> N
     done = {o.job.method.name for o in outcomes if o.result is not None}
     assert all("\n" not in r for r in skipped.values())
     # the AO estimators need the camera this plain file does not record; nfor needs halves
-    ao = {"ssao", "hbao", "alchemy", "gtao"}
+    ao = {"ssao", "hbao", "alchemy", "gtao", "nnao"}
     assert all("no camera recorded" in skipped[k] for k in ao)
     assert all("color_a" in r for k, r in skipped.items() if k == "nfor")
     assert set(skipped) - ao - {"nfor"} == {"kalantari-xbf", "kalantari-nlm"}
