@@ -11,8 +11,14 @@ the projected AO radius; :func:`nnao_inputs` builds those inputs from the view-s
 Parameters: ``model`` (a model file or run folder; default the shipped
 ``mcdenoise/models/weights/nnao.pt``, trained by ``data/recipes/nnao.md``), and ``radius``,
 ``fov``, ``fov_axis`` as for the screen-space methods (the AO radius defaults to the
-render's). No blur: the sample pattern is the same at every pixel, so the output has no
-sampling noise to blur away.
+render's), and ``blur`` (default on): a depth-aware separable Gaussian of radius 2
+(:func:`mcdenoise.ao.blur.gaussian_line_offsets`, HBAO+'s x and y passes). The pattern is the
+same at every pixel, so there is no sampling noise, but the network's error changes from
+pixel to pixel (samples snap to pixel centres differently at each pixel); on the two
+validation images of the training set (seed 4000, never the benchmark scenes) the blur raised
+SSIM from 0.743 / 0.967 to 0.791 / 0.973 at relMSE 0.1107 -> 0.1092 / 0.0047 -> 0.0058
+(a radius-4 Gaussian: SSIM 0.812 / 0.972, relMSE 0.1092 / 0.0071; the 4×4 box: 0.788 /
+0.972).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from mcdenoise.ao.blur import blur_passes, gaussian_line_offsets
 from mcdenoise.ao.geometry import ViewGBuffer, view_gbuffer
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
@@ -92,19 +99,22 @@ def load_nnao(model: str) -> NnaoModel:
     return _load(str(path.resolve()), path.stat().st_mtime_ns)
 
 
-def nnao(model: NnaoModel, g: ViewGBuffer, radius: float) -> Tensor:
-    """AO ``(H, W)`` of ``g`` by ``model``; 1 on empty pixels."""
+def nnao(model: NnaoModel, g: ViewGBuffer, radius: float, blur: bool = True) -> Tensor:
+    """AO ``(H, W)`` of ``g`` by ``model`` (then the depth-aware blur); 1 on empty pixels."""
     x = nnao_inputs(g, radius, model.card.samples)
     dev = next(model.parameters()).device
     with torch.no_grad():
         ao = model(x.to(dev).permute(1, 2, 0)).to(x.device)
+    if blur:
+        passes = [gaussian_line_offsets(2, True), gaussian_line_offsets(2, False)]
+        ao = blur_passes(ao, g, passes, radius)
     return torch.where(g.valid, ao, torch.ones_like(ao))
 
 
 def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
     model = load_nnao(str(params["model"]))
     g, radius = gbuffer_for(b, params)
-    ao = nnao(model, g, radius)
+    ao = nnao(model, g, radius, blur=bool(params["blur"]))
     h, w = ao.shape
     return ao.unsqueeze(0).expand(3, h, w).contiguous()
 
@@ -126,7 +136,7 @@ METHOD = Method(
     "neighbourhood (Holden et al. 2016); -p model=RUN",
     requires=("depth",),
     uses=("normal",),
-    defaults={"model": SHIPPED, "radius": None, "fov": None, "fov_axis": ""},
+    defaults={"model": SHIPPED, "radius": None, "fov": None, "fov_axis": "", "blur": True},
     run=_run,
     priority=PRIORITY,
     check_input=_check,

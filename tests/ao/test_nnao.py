@@ -2,10 +2,10 @@
 on a real AO render.
 
 Measured with the shipped weights (1 thread): a flat floor 1 unit below the camera (radius
-0.5; closed form: AO 1) gives mean / minimum 0.965 / 0.854 at pitch 30° and 0.885 / 0.730 at
-pitch 60° -- a documented bias of the learned estimator (the sigmoid never reaches 1 and the
+0.5; closed form: AO 1) gives mean / minimum 0.966 / 0.873 at pitch 30° and 0.885 / 0.748 at
+pitch 60° (with the default blur) -- a documented bias of the learned estimator (the sigmoid never reaches 1 and the
 16 training images hold little open floor seen from so close; the lowest values are at the
-image border, where samples fall off screen). ``ao_contact_48x36``: SSIM 0.857, relMSE 0.0118
+image border, where samples fall off screen). ``ao_contact_48x36``: SSIM 0.873, relMSE 0.0139
 (ssao 0.848 / 0.0396, gtao 0.869 / 0.0204 on the same file, ``test_ao_render.py``).
 """
 
