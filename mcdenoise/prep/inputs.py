@@ -10,7 +10,8 @@ the guide features to comparable scales and picks up the variances that are pres
   scene"; their variances by the extent squared;
 * features that come with a variance are **prefiltered** (variance-normalised NLM, 11×11
   window), as in Rousselle et al. 2013: a defocused or motion-blurred feature is as noisy as
-  the colour and would otherwise imprint that noise on the result; with
+  the colour and would otherwise imprint that noise on the result (with ``variance_prior``,
+  at a few samples per pixel, steered by :func:`low_spp_prefilter_variance`); with
   ``estimate_missing=True`` a feature *without* a variance buffer (a Mitsuba ``aov`` file,
   Cycles) is prefiltered the same way with a variance estimated from its own neighbourhood
   (:func:`estimate_feature_variance`), at most what the colour's noise allows
@@ -43,7 +44,7 @@ from mcdenoise.filters.nlm import non_local_means
 from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, XbfSettings, feature_bandwidths
 from mcdenoise.io.buffers import FeatureBuffers, sanitize
 from mcdenoise.prep.fireflies import check_mode, remove_fireflies
-from mcdenoise.prep.variance import low_spp_variance
+from mcdenoise.prep.variance import MAX_SPP, low_spp_variance
 
 #: NLM settings of the feature prefilter (variance-normalised, paper denominator ``v_i + v_j``).
 PREFILTER = {"search_radius": 5, "patch_radius": 3, "k": 1.0, "alpha": 1.0, "var_pair": "sum"}
@@ -211,6 +212,36 @@ def feature_noise_cap(color: Tensor, color_var: Tensor, feature: Tensor) -> Tens
     return FEATURE_NOISE_CAP * rel * feature.square().mean(dim=1, keepdim=True)
 
 
+def low_spp_prefilter_variance(
+    feature: Tensor, variance: Tensor, spp: float | None, max_spp: float = MAX_SPP
+) -> Tensor:
+    """The variance that steers a feature's prefilter at ``max_spp`` samples per pixel or fewer
+    (default :data:`~mcdenoise.prep.variance.MAX_SPP`): ``max(v, e)`` of the feature's (pooled) variance buffer ``v``
+    (channel mean) and its neighbourhood estimate ``e`` (:func:`estimate_feature_variance`);
+    ``variance`` itself above that, or when ``spp`` is unknown.
+
+    A feature's variance buffer from 2 samples is as noisy as the colour's: where the two
+    samples of a defocused pixel happened to land on the same surface it is 0, and the pooled
+    prior (:mod:`mcdenoise.prep.variance`) does not lift it, since it pools over pixels of
+    similar *albedo* -- which the noisy albedo itself decides. The prefilter then keeps the
+    albedo as noisy as it was written, and demodulation brings that noise back into the
+    result (Rousselle et al. 2013 prefilter the features for this reason; OIDN denoises its
+    auxiliary images first). The neighbourhood estimate sees the noise the buffer missed.
+
+    Unlike :func:`~mcdenoise.prep.aux_prefilter.aux_feature_variance` (``kpcn``'s, for a
+    feature *without* a buffer), the estimate is not capped by the colour's noise: at a few
+    samples the colour's relative noise is far above any texture's, so the cap would only
+    hold back the noisy albedo of mixing pixels. Measured on the demo renders at 2 spp
+    (``nlm``/``cross-bilateral`` relMSE, ``docs/results/robustness.md``): ``dof_row``
+    0.0655/0.0649 with the buffer alone, 0.0327/0.0348 with the capped estimate (mixing pixels
+    uncapped), 0.0240/0.0258 with this; ``textured_floors`` 0.0259/0.0274 -> 0.0226/0.0236;
+    ``cornell`` and ``caustics_glass`` within 0.3 %. At 8 spp the changes are under 1 %.
+    """
+    if spp is None or spp > max_spp:
+        return variance
+    return torch.maximum(variance.mean(dim=1, keepdim=True), estimate_feature_variance(feature))
+
+
 def prefilter_feature(
     feature: Tensor, variance: Tensor, settings: Mapping[str, Any] = PREFILTER
 ) -> Tensor:
@@ -259,6 +290,7 @@ def prepare_inputs(
     prefilter_settings: Mapping[str, Any] | None = None,
     fireflies: str = "off",
     variance_prior: float = 0.0,
+    variance_prior_max_spp: float = MAX_SPP,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
 ) -> FilterInputs:
@@ -283,7 +315,10 @@ def prepare_inputs(
         variance_prior: degrees of freedom ``ν₀`` of the pooled variance the renderer's
             per-pixel variance is shrunk towards (:func:`~mcdenoise.prep.variance.low_spp_variance`,
             after the firefly pass, before ``max(v, median_3×3(v))``); 0, the default, keeps
-            the per-pixel estimate (what the learned models were trained with).
+            the per-pixel estimate (what the learned models were trained with). With it, the
+            features' prefilter is steered by :func:`low_spp_prefilter_variance`.
+        variance_prior_max_spp: the most samples per pixel both apply at (the Kalantari
+            methods: 2).
         dtype, device: of the returned tensors.
 
     Raises:
@@ -313,6 +348,7 @@ def prepare_inputs(
             fireflies,
             albedo=t("albedo") if "albedo" in clean else None,
             normal=t("normal") if "normal" in clean else None,
+            dense=buffers.spp is None or buffers.spp <= MAX_SPP,
         )
         n_fireflies, firefly_energy, firefly_mask = ff.count, ff.removed[0], ff.mask
         if n_fireflies:
@@ -329,6 +365,7 @@ def prepare_inputs(
             prior_dof=variance_prior,
             exclude=firefly_mask,
             luminance=color.mean(dim=1, keepdim=True),
+            max_spp=variance_prior_max_spp,
         )
     color_var = raw_var if estimated else robust_variance(raw_var)
     wanted = [f for f in features if f in clean]
@@ -345,12 +382,20 @@ def prepare_inputs(
         f = t(name) * scale
         if name + "_var" in clean:
             fvars[name] = t(name + "_var") * scale**2
+            steer = fvars[name]
             if variance_prior > 0:  # as noisy as the colour's from a few samples
                 fvars[name] = low_spp_variance(
-                    fvars[name], buffers.spp, pool_guides, prior_dof=variance_prior
+                    fvars[name],
+                    buffers.spp,
+                    pool_guides,
+                    prior_dof=variance_prior,
+                    max_spp=variance_prior_max_spp,
+                )
+                steer = low_spp_prefilter_variance(
+                    f, fvars[name], buffers.spp, variance_prior_max_spp
                 )
             if prefilter:
-                f = prefilter_feature(f, fvars[name], prefilter_settings or PREFILTER)
+                f = prefilter_feature(f, steer, prefilter_settings or PREFILTER)
         elif estimate_missing:
             v = torch.minimum(estimate_feature_variance(f), feature_noise_cap(color, color_var, f))
             f = prefilter_feature(f, v, PREFILTER_ESTIMATED)
@@ -409,6 +454,7 @@ __all__ = [
     "estimate_variance",
     "feature_noise_cap",
     "guide_args",
+    "low_spp_prefilter_variance",
     "prefilter_feature",
     "prepare_inputs",
     "quantile_subsampled",

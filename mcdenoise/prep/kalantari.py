@@ -239,6 +239,7 @@ def prepare_item(
     features: bool = True,
     fireflies: str | None = None,
     variance_prior: float | None = None,
+    variance_prior_max_spp: float | None = None,
 ) -> dict[str, Tensor]:
     """Filter inputs and raw features of one image, ``{name: (C, H, W)}``.
 
@@ -246,7 +247,8 @@ def prepare_item(
     an input with more buffers than a model was trained with is seen as the model expects.
     ``fireflies``: the firefly handling (:mod:`mcdenoise.prep.fireflies`), default the
     settings' own; ``variance_prior``: the low-spp variance (:mod:`mcdenoise.prep.variance`),
-    default the settings' own (0: the per-pixel estimate the shipped models were trained with).
+    default the settings' own (0: the per-pixel estimate the shipped models were trained with),
+    applied up to ``variance_prior_max_spp`` samples per pixel (``None``: prepare_inputs').
 
     Keys: ``color`` (sanitised noisy colour), ``irr``/``irr_var`` (what the filter averages and
     its variance), ``factor`` (remodulation, ones without albedo), ``feat.<g>``/``fvar.<g>``
@@ -262,6 +264,11 @@ def prepare_item(
         prefilter=settings.prefilter,
         fireflies=settings.fireflies if fireflies is None else fireflies,
         variance_prior=settings.variance_prior if variance_prior is None else variance_prior,
+        **(
+            {}
+            if variance_prior_max_spp is None
+            else {"variance_prior_max_spp": variance_prior_max_spp}
+        ),
     )
     missing = [g for g in guides if g not in inp.features]
     if missing:  # e.g. position present but no usable scene extent
@@ -296,6 +303,7 @@ def prepare_for_model(
     features: bool = True,
     fireflies: str | None = None,
     variance_prior: float | None = None,
+    variance_prior_max_spp: float | None = None,
 ) -> dict[str, Tensor]:
     """The item :meth:`~mcdenoise.models.kalantari.KalantariModel.filter` needs for one image
     (:func:`prepare_item` with the model's kind, settings, guides and guide variances;
@@ -318,6 +326,7 @@ def prepare_for_model(
         features=features,
         fireflies=fireflies,
         variance_prior=variance_prior,
+        variance_prior_max_spp=variance_prior_max_spp,
     )
 
 
