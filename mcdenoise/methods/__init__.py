@@ -22,9 +22,24 @@ svgf               temporal: spatiotemporal variance-guided filtering          5
                    (Schied 2017; Falcor's SVGFPass) over a sequence with
                    motion vectors; a frame without motion is a cut, so a
                    still gets the first-frame filter (:mod:`~mcdenoise.methods.svgf`)
+nfor               NFOR (Bitterli 2016): first-order regression on the          3
+                   features with NL-means weights across the two half buffers,
+                   bandwidth chosen per pixel by the two-buffer error; needs
+                   ``color_a``/``color_b`` (:mod:`~mcdenoise.methods.nfor`)
+kpcn-temporal      temporal: Vogels 2018 kernel predictor over a window of      2
+                   motion-warped frames (5, offline; ``-p window``,
+                   ``-p mode=causal``) around the shipped kpcn; a one-frame
+                   sequence is kpcn bit for bit
+                   (:mod:`~mcdenoise.methods.kpcn_temporal`; -1 without weights)
 oidn               Intel Open Image Denoise (pyoidn), colour + albedo +        0
                    normal; a peer to compare with, never the default
                    (:mod:`~mcdenoise.methods.oidn`)
+ssao, hbao,        AO estimators: screen-space ambient occlusion from depth,  -10
+alchemy, gtao,     normal and the recorded camera (Crytek; Bavoil 2008;
+nnao               McGuire 2011/2012; Jimenez 2016 after XeGTAO; Holden 2016's
+                   learned NNAO); they ignore the noisy colour and compete with
+                   ray-traced AO plus a denoiser (:mod:`~mcdenoise.methods.ao`,
+                   :mod:`~mcdenoise.methods.nnao`)
 =================  ==========================================================  ========
 
 Each module builds its :class:`~mcdenoise.method.Method` (buffers -> :mod:`mcdenoise.prep` ->
