@@ -45,29 +45,30 @@ from mcdenoise.prep.fireflies import params_mode
 from mcdenoise.prep.kalantari import check_inputs, item_features, prepare_for_model
 
 #: Degrees of freedom ``ν₀`` of the pooled low-spp variance the methods run with (``-p
-#: variance_prior``; :mod:`mcdenoise.prep.variance`, up to :data:`PRIOR_MAX_SPP`; with it the
-#: features' prefilter is steered by :func:`~mcdenoise.prep.inputs.low_spp_prefilter_variance`). The shipped models
-#: were trained on the renderer's per-pixel estimate, and the filter they steer is sensitive to
-#: how much it is changed: at 2 spp the pooled value's weight is ``ν₀ / (1 + ν₀)``, a third
-#: here. That is enough to lift the pixels whose two samples agreed (variance near 0, which
-#: refuse every neighbour), which is what breaks at 2 spp; more moves the variance the models
-#: learned to read. ``kalantari-nlm`` / ``kalantari-xbf`` relMSE at 2 spp with ν₀ = 0, 0.5, 3
-#: (the nlm method's; measured before the prefilter steering, with both the demo's tables in
-#: ``docs/results/robustness.md``): demo ``cornell`` 0.0165/0.0119/0.0267 and 0.0113/0.0119/0.0151,
-#: ``caustics_glass`` 0.113/0.030/0.031 and 0.096/0.032/0.031; robust subset
-#: ``interior_door`` 0.106/0.047/0.046 and 0.089/0.041/0.040, ``mesh_object``
-#: 0.100/0.0137/0.0137 and 0.081/0.0149/0.0141. At 4 spp (ν₀ 0 -> 0.5) ``interior_door``
-#: 0.041 -> 0.014 and 0.024 -> 0.011, the demo scenes 1-14 % lower except ``cornell`` with
-#: ``kalantari-xbf`` (0.0065 -> 0.0100, 1.2× OIDN's). The pooled value is what the filter
-#: and the features both read: giving it to the filter alone or to the features alone was
-#: measured too (cornell 2 spp, ν₀ = 3: filter only 0.0263, features only 0.0159; the
-#: caustics are fixed by the filter's share).
-VARIANCE_PRIOR = 0.5
+#: variance_prior``; :mod:`mcdenoise.prep.variance`, up to :data:`PRIOR_MAX_SPP`; with it
+#: the features' prefilter is steered by
+#: :func:`~mcdenoise.prep.inputs.low_spp_prefilter_variance`). The shipped models were
+#: trained on the renderer's per-pixel estimate, and the filter they steer is sensitive to
+#: how much it is changed: at 2 spp the pooled value's weight is ``ν₀ / (1 + ν₀)``, a
+#: tenth here. That is enough to lift the pixels whose two samples agreed (variance near 0,
+#: which refuse every neighbour), which is what breaks at 2 spp; more moves the variance the
+#: models learned to read. ``kalantari-nlm`` / ``kalantari-xbf`` relMSE at 2 spp (robust
+#: subset renders, ``docs/results/robustness.md``) with ν₀ = 0, 0.1, 0.25, 0.5:
+#: ``cornell_direct`` 0.0109/0.0081/0.0162/0.0602 and 0.0095/0.0086/0.0125/0.0171 (at 0.5
+#: above the noisy input's 0.032), ``caustics_glass`` 0.113/0.031/0.029/0.028 and
+#: 0.095/0.033/0.031/0.031; with ν₀ = 0.1: ``interior_door`` 0.0192 and 0.0170 (0.5: 0.0169
+#: and 0.0169; 0: 0.106 and 0.089), ``mesh_object`` 0.0159 and 0.0155 (0: 0.100 and 0.081),
+#: ``sun_outdoor`` 0.0156 and 0.0112, ``cornell`` 0.0087 and 0.0100 (0: 0.0165 and 0.0113;
+#: ν₀ = 3, the nlm method's: 0.0267 and 0.0151). The cost of a larger ν₀ is in the filter,
+#: not in the features (cornell, ν₀ = 3: pooled variance in the filter only 0.0263, in the
+#: features only 0.0159).
+VARIANCE_PRIOR = 0.1
 #: The most samples per pixel :data:`VARIANCE_PRIOR` applies at (``-p variance_prior_max_spp``):
 #: 2, where the cliff is. At 4 spp it helped the robust subset's ``interior_door`` (relMSE
 #: 0.041 -> 0.014 and 0.024 -> 0.011) but darkened the sample ``cornell_spp4`` with
-#: ``kalantari-nlm`` from -1.8 % to -9.5 % (-8.0 % with ν₀ = 0.25; ``tests/methods/test_bias.py``
-#: allows 2 %) and raised the demo ``cornell``'s ``kalantari-xbf`` relMSE 0.0065 -> 0.0100.
+#: ``kalantari-nlm`` from -1.8 % to -9.5 % with ν₀ = 0.5 (-8.0 % with 0.25;
+#: ``tests/methods/test_bias.py`` allows 2 %) and raised the demo ``cornell``'s
+#: ``kalantari-xbf`` relMSE 0.0065 -> 0.0100.
 PRIOR_MAX_SPP = 2
 
 
