@@ -75,8 +75,9 @@ RECORDED_SPEED: Mapping[str, tuple[float, float]] = {
     "oidn": (0.121, 0.223),
     # the first frame of a sequence (spatial à-trous only); 2026-11-26, load average 0.3
     "svgf": (0.049, 5.19),
-    # CPU seconds (process_time) of 64² and 128² frames (heldout-halves cornell 4 spp), load average 13
-    "nfor": (2.96, 737.0),
+    # CPU seconds (process_time, min of 2) of 64² and 128² frames (heldout-halves cornell 4 spp),
+    # 2026-11-26 after the kept-weights speed-up, load average 3 (docs/results/nfor.md)
+    "nfor": (0.15, 543.0),
     # the first frame of a sequence is kpcn's computation bit for bit: kpcn's idle record
     # (bench_threads.py --calibrate --methods kpcn-temporal,kpcn at load 11, 2026-11-26:
     # 0.118 + 13.9 s/MP against kpcn's 0.332 + 23.6 in the same run)

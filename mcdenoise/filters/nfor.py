@@ -52,12 +52,15 @@ from the depth feature; the figures of this implementation are in ``docs/results
 
 Memory: every operator runs on output tiles with a halo as wide as its footprint (the result
 does not depend on the tile size), so a 1-megapixel frame needs ``O(tile²)`` working memory
-besides a few whole-image maps; tiles are shared by worker threads on the CPU
+besides a few whole-image maps (the regression keeps each window offset's weights from its
+moment pass for its reconstruction pass: 361 float32 maps of a 298² crop, 128 MB per tile,
+bounded by :data:`WEIGHT_CACHE_BYTES`); tiles are shared by worker threads on the CPU
 (:mod:`mcdenoise.filters.parallel`).
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -76,6 +79,8 @@ EPS = 1e-7
 DIST_CLAMP = 1e4
 #: Output tile edge of every operator here.
 TILE = 256
+#: Most bytes of regression weights kept between the two passes over the window offsets.
+WEIGHT_CACHE_BYTES = 256 * 2**20
 
 
 @dataclass(frozen=True)
@@ -137,8 +142,9 @@ def _distance(
         return None
     ys, xs = slice(y0, y1), slice(x0, x1)
     gi, gj = guide[..., ys, xs], guide[..., y0 + dy : y1 + dy, x0 + dx : x1 + dx]
-    vi = var[..., ys, xs] * var_scale
-    vj = var[..., y0 + dy : y1 + dy, x0 + dx : x1 + dx] * var_scale
+    vi, vj = var[..., ys, xs], var[..., y0 + dy : y1 + dy, x0 + dx : x1 + dx]
+    if var_scale != 1.0:  # the crop functions scale var once, not per offset
+        vi, vj = vi * var_scale, vj * var_scale
     t = (gi - gj).square_().sub_(vi + torch.minimum(vi, vj))
     t = t.div_((vi + vj).mul_(k * k).add_(EPS)).clamp_(max=DIST_CLAMP)
     if f > 0:  # mean over the patch pairs inside the valid rectangle (clipped counts)
@@ -160,11 +166,19 @@ def _box_mean(t: Tensor, f: int) -> Tensor:
 
 
 def _inverse_counts(h: int, w: int, f: int, like: Tensor) -> Tensor:
-    """``(h, w)``: 1 / the number of window pixels inside an ``h × w`` image."""
+    """``(h, w)``: 1 / the number of window pixels inside an ``h × w`` image (cached: the
+    same few shapes recur for every window offset)."""
+    return _inverse_counts_cached(h, w, f, like.dtype, like.device)
+
+
+@functools.lru_cache(maxsize=64)
+def _inverse_counts_cached(
+    h: int, w: int, f: int, dtype: torch.dtype, device: torch.device
+) -> Tensor:
     ky = [min(y + f, h - 1) - max(y - f, 0) + 1 for y in range(h)]
     kx = [min(x + f, w - 1) - max(x - f, 0) + 1 for x in range(w)]
-    cy = torch.tensor(ky, dtype=like.dtype, device=like.device)
-    cx = torch.tensor(kx, dtype=like.dtype, device=like.device)
+    cy = torch.tensor(ky, dtype=dtype, device=device)
+    cx = torch.tensor(kx, dtype=dtype, device=device)
     return 1.0 / (cy[:, None] * cx[None, :])
 
 
@@ -187,8 +201,9 @@ def _nlm_crop(
     img = image.reshape(b, -1, c, h, w)
     acc = torch.zeros_like(img)
     wsum = guide.new_zeros((b, 1, c, h, w))
+    var = var * var_scale
     for dy, dx in _offsets(r):
-        got = _distance(guide, var, dy, dx, f, k, var_scale)
+        got = _distance(guide, var, dy, dx, f, k, 1.0)
         if got is None:
             continue
         d, ys, xs = got
@@ -296,14 +311,29 @@ def _regression_crop(
     acc_o = z.new_zeros((b, 3, h, w))  # Σ w Δx², Σ w Δx Δy, Σ w Δy²
     scale = 1.0 / max(r, 1)
 
-    def weights(dy: int, dx: int) -> tuple[Tensor, slice, slice] | None:
-        got = _distance(guide, var, dy, dx, f, k, var_scale)
-        if got is None:
-            return None
-        dist, ys, xs = got  # min over channels of exp(-d): Tungsten's convertWeight
-        return neg_exp(dist.amax(dim=1, keepdim=True).clamp_min_(0.0)), ys, xs
+    var_s = var * var_scale
+    # The weights of every offset are kept from the moment pass for the reconstruction pass
+    # (the same w_ij), unless they would exceed WEIGHT_CACHE_BYTES; then they are recomputed.
+    cache: dict[tuple[int, int], tuple[Tensor, slice, slice] | None] | None = (
+        {} if (2 * r + 1) ** 2 * b * h * w * image.element_size() <= WEIGHT_CACHE_BYTES else None
+    )
 
-    for dy, dx in _offsets(r):
+    def weights(dy: int, dx: int) -> tuple[Tensor, slice, slice] | None:
+        if cache is not None and (dy, dx) in cache:
+            return cache.pop((dy, dx))
+        got = _distance(guide, var_s, dy, dx, f, k, 1.0)
+        res = None
+        if got is not None:
+            dist, ys, xs = got  # min over channels of exp(-d): Tungsten's convertWeight
+            res = neg_exp(dist.amax(dim=1, keepdim=True).clamp_min_(0.0)), ys, xs
+        if cache is not None:
+            cache[(dy, dx)] = res
+        return res
+
+    offsets = _offsets(r)
+    lin = [(dx * scale, dy * scale) for dy, dx in offsets]
+    quads = z.new_tensor([[ox * ox, ox * oy, oy * oy] for ox, oy in lin]).view(-1, 1, 3, 1, 1)
+    for o, (dy, dx) in enumerate(offsets):
         got = weights(dy, dx)
         if got is None:
             continue
@@ -317,8 +347,7 @@ def _regression_crop(
         if oy:
             acc_y[..., ys, xs].addcmul_(z[:, :nlin, yj, xj], w64, value=oy)
         if ox or oy:
-            quad = w64.new_tensor([ox * ox, ox * oy, oy * oy]).view(1, 3, 1, 1)
-            acc_o[..., ys, xs].addcmul_(w64.expand(-1, 3, -1, -1), quad)
+            acc_o[..., ys, xs].addcmul_(w64.expand(-1, 3, -1, -1), quads[o])
 
     # Normal equations per pixel, design [1, Δx, Δy, f_j - f_i].
     n = b * h * w

@@ -90,6 +90,23 @@ def test_tiles_do_not_change_the_result() -> None:
     )
 
 
+def test_kept_weights_equal_recomputed_weights(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The regression keeps each offset's weights for its reconstruction pass; with no room
+    for them it recomputes them, and the result is the same to the bit."""
+    import mcdenoise.filters.nfor as nfor_mod
+
+    g = torch.Generator().manual_seed(2)
+    img = torch.rand(1, 3, 15, 13, generator=g)
+    guide = img + 0.05 * torch.randn(1, 3, 15, 13, generator=g)
+    var = torch.full((1, 1, 15, 13), 0.02)
+    feats = torch.rand(1, 2, 15, 13, generator=g)
+    kw = dict(k=0.5, patch_radius=1, search_radius=3, var_scale=1.5)
+    kept = collaborative_regression(img, guide, var, feats, **kw)
+    monkeypatch.setattr(nfor_mod, "WEIGHT_CACHE_BYTES", 0)
+    recomputed = collaborative_regression(img, guide, var, feats, **kw)
+    assert torch.equal(kept, recomputed)
+
+
 def test_nl_means_weights_come_from_the_guide() -> None:
     # A guide with an edge keeps the image's two sides apart; a flat guide blurs them.
     img = torch.zeros(1, 1, 12, 12)
