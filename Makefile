@@ -67,7 +67,7 @@ demo: install
 SAMPLES_OUT  ?= data/samples
 SAMPLES_WORK ?= build/samples-render
 samples: install system-deps
-	$(BIN)/mcdenoise render data/scenes/samples -o $(SAMPLES_WORK) --res 128 --spp 4,16 \
+	$(BIN)/mcdenoise render data/scenes/samples --no-halves -o $(SAMPLES_WORK) --res 128 --spp 4,16 \
 	  --ref-spp 16384 --samples-out $(SAMPLES_OUT)
 
 # A small training set (gitignored): the curated specs in data/scenes plus DATA_RANDOM

@@ -25,7 +25,7 @@ NOISY_SPP = (4, 16)
 FEATURES = ("color", "albedo", "normal", "depth", "position")
 NOISY_BUFFERS = {*FEATURES, *(f + "_var" for f in FEATURES)}
 #: The command that renders the samples (data/samples/README.md, the Makefile's `samples`).
-COMMAND = "mcdenoise render data/scenes/samples"
+COMMAND = "mcdenoise render data/scenes/samples --no-halves"
 
 
 @pytest.fixture(scope="module")
