@@ -269,7 +269,10 @@ def estimate_record(denoiser: Denoiser, buffers: FeatureBuffers, output: Tensor)
 
     t0 = time.perf_counter()
     half_a, half_b = split_halves(buffers)
-    out_a, out_b = denoiser(half_a), denoiser(half_b)
+    try:
+        out_a, out_b = denoiser(half_a), denoiser(half_b)
+    except InputError as e:  # e.g. nfor: a half has no halves of its own
+        raise InputError(f"--estimate-error runs the method on each half alone: {e}") from None
     clean, _ = sanitize(buffers)
     est = estimate_from_outputs(out_a, out_b, clean, output=output)
     return {**est.to_dict(), "estimate_seconds": round(time.perf_counter() - t0, 6)}

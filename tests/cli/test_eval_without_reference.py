@@ -59,3 +59,15 @@ def test_eval_without_ref_and_without_estimates_is_refused(tmp_path: Path) -> No
     assert r.exit_code == 2 and "Missing option '--ref'" in r.stderr
     assert "--estimate-error" in r.stderr
     assert not (tmp_path / "rep").exists()
+
+
+def test_a_method_that_needs_halves_cannot_be_judged_by_them(tmp_path: Path) -> None:
+    """nfor runs on the halves itself: on one half alone it has none, so --estimate-error
+    refuses it in one line and writes nothing."""
+    src = _noisy_with_halves(tmp_path / "in.exr")
+    out = tmp_path / "nfor.exr"
+    r = run("denoise", str(src), "-m", "nfor", "--estimate-error", "-o", str(out))
+    err = r.stderr.strip()
+    assert r.exit_code != 0 and len(err.splitlines()) == 1, err
+    assert "--estimate-error runs the method on each half alone" in err and "color_a" in err
+    assert not out.exists()
