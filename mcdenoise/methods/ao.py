@@ -39,7 +39,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.ao import alchemy, gtao, hbao, ssao
-from mcdenoise.ao.geometry import view_gbuffer
+from mcdenoise.ao.geometry import ViewGBuffer, view_gbuffer
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.camera import CameraInfo, camera_from_attributes
@@ -95,8 +95,21 @@ def screen_space_ao(
 ) -> Tensor:
     """AO ``(3, H, W)`` (grey) of ``buffers`` by ``estimator`` (one of :mod:`mcdenoise.ao`);
     ``params`` holds the shared parameters (module docstring) and the estimator's own."""
+    g, radius = gbuffer_for(buffers, params, needed_by="screen-space AO")
+    own = {k: v for k, v in params.items() if k not in _COMMON}
+    ao = estimator(g, radius, falloff=float(params["falloff"]), blur=bool(params["blur"]), **own)
+    h, w = buffers["depth"].shape[-2:]
+    return ao.unsqueeze(0).expand(3, h, w).contiguous()
+
+
+def gbuffer_for(
+    buffers: FeatureBuffers, params: Mapping[str, Any], *, needed_by: str
+) -> tuple[ViewGBuffer, float]:
+    """The view-space G-buffer of ``buffers`` and the AO radius (camera from the header, with
+    the ``fov``/``radius`` overrides of ``params``); the normals are rebuilt from depth when
+    the file has none or no camera-to-world matrix to bring them into view space."""
     cam = camera_for(buffers, params)
-    buffers.require(("depth",), needed_by="screen-space AO")
+    buffers.require(("depth",), needed_by=needed_by)
     depth = buffers["depth"]
     h, w = depth.shape[-2:]
     normal = buffers.get("normal")
@@ -106,12 +119,8 @@ def screen_space_ao(
     else:
         normal = None
     g = view_gbuffer(depth, cam.focal_pixels(w, h), normal=normal, world_to_view=rot)
-    own = {k: v for k, v in params.items() if k not in _COMMON}
     assert cam.ao_radius is not None  # camera_for
-    ao = estimator(
-        g, cam.ao_radius, falloff=float(params["falloff"]), blur=bool(params["blur"]), **own
-    )
-    return ao.unsqueeze(0).expand(3, h, w).contiguous()
+    return g, float(cam.ao_radius)
 
 
 def _method(
@@ -167,5 +176,6 @@ __all__ = [
     "PRIORITY",
     "SSAO",
     "camera_for",
+    "gbuffer_for",
     "screen_space_ao",
 ]

@@ -31,11 +31,12 @@ import torch
 from torch import Tensor
 
 from mcdenoise.ao.blur import blur_passes, gaussian_line_offsets
-from mcdenoise.ao.geometry import ViewGBuffer, view_gbuffer
+from mcdenoise.ao.geometry import ViewGBuffer
 from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method
 from mcdenoise.methods.ao import PRIORITY, camera_for
+from mcdenoise.methods.ao import gbuffer_for as ao_gbuffer_for
 from mcdenoise.modelfile import model_file
 from mcdenoise.models.nnao import OFFSET_CLAMP, NnaoModel, sample_pattern
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
@@ -62,21 +63,9 @@ def nnao_inputs(g: ViewGBuffer, radius: float, samples: int) -> Tensor:
 
 
 def gbuffer_for(buffers: FeatureBuffers, params: Mapping[str, Any]) -> tuple[ViewGBuffer, float]:
-    """The view-space G-buffer of ``buffers`` and the AO radius (camera from the header, with
-    the ``fov``/``radius`` overrides of ``params``)."""
-    cam = camera_for(buffers, params)
-    buffers.require(("depth",), needed_by="nnao")
-    depth = buffers["depth"]
-    h, w = depth.shape[-2:]
-    normal = buffers.get("normal")
-    rot = None
-    if normal is not None and cam.to_world is not None:
-        rot = torch.as_tensor(cam.world_to_view(), dtype=torch.float32)
-    else:
-        normal = None
-    g = view_gbuffer(depth, cam.focal_pixels(w, h), normal=normal, world_to_view=rot)
-    assert cam.ao_radius is not None  # camera_for
-    return g, float(cam.ao_radius)
+    """The view-space G-buffer of ``buffers`` and the AO radius, as the screen-space methods
+    build them (:func:`mcdenoise.methods.ao.gbuffer_for`)."""
+    return ao_gbuffer_for(buffers, params, needed_by="nnao")
 
 
 @functools.lru_cache(maxsize=4)
