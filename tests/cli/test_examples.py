@@ -79,6 +79,8 @@ def is_slow(command: str) -> bool:
         or "--experiment" in words
         or "runs/" in command
         or "seq/" in command  # reads the sequence the README's render line writes
+        or "renders/" in command  # reads the README's rendered data set (half buffers)
+        or "est/" in command  # reads what the line before wrote from renders/
     )
 
 
@@ -165,7 +167,11 @@ def test_readme_render_train_denoise_chain_runs(work: Path) -> None:
     """All but the demo, in the README's order (its later commands use earlier outputs)."""
     commands = [c for c in readme_commands() if "--experiment" not in c]
     chain = [c for c in commands if is_slow(c)]
-    assert [shlex.split(c)[1] for c in chain] == ["render", "train", "denoise"]
+    assert [shlex.split(c)[1] for c in chain] == [
+        *("render", "train", "denoise"),  # a data set, a model trained on it, the model used
+        *("render", "denoise", "eval"),  # a sequence, svgf over it, temporal metrics
+        *("denoise", "eval"),  # errors estimated from the half buffers, eval without --ref
+    ]
     for command in commands:
         run_line(command)
     assert (work / "out" / "mine.exr").is_file()
