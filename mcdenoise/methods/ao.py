@@ -61,9 +61,16 @@ def camera_for(buffers: FeatureBuffers, params: Mapping[str, Any]) -> CameraInfo
     """The camera of ``buffers`` (header) with ``fov``/``radius`` overrides from ``params``.
 
     Raises:
-        InputError: no field of view or no AO radius, from the file or the parameters.
+        InputError: no field of view or no AO radius, from the file or the parameters; or
+            the file is a render of light, not of AO (its ``mcdenoise:effects``).
     """
     where = str(buffers.source or "input")
+    effects = buffers.attributes.get("mcdenoise:effects")
+    if effects is not None and "ao" not in str(effects).split(","):
+        raise InputError(
+            f"{where}: a render of {effects} light, not of ambient occlusion "
+            "(mcdenoise:effects); the AO estimators are judged against ray-traced AO renders"
+        )
     cam = camera_from_attributes(buffers.attributes, where)
     fov, radius = params.get("fov"), params.get("radius")
     axis = params.get("fov_axis") or None
