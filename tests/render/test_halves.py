@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from scene_specs import DOF_SCENE as DOF
 
 from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.generate import generate
@@ -28,36 +29,6 @@ from mcdenoise.render.spec import load_spec, parse_spec
 
 VARIANT = "scalar_rgb"
 
-# Thin lens, textured floor, two spheres: colour and every feature vary inside a pixel.
-DOF = """
-name = "dof"
-effects = ["direct", "dof"]
-[camera]
-type = "thinlens"
-origin = [0, 1.2, 4.5]
-target = [0, 0.45, 0]
-fov = 40
-aperture_radius = 0.15
-[[objects]]
-shape = "rectangle"
-transform = { rotate = [-90, 0, 0], scale = [6, 6, 1] }
-material = { type = "diffuse", reflectance = { checkerboard = { color0 = [0.1, 0.1, 0.1], color1 = [0.8, 0.8, 0.8], scale = 12 } } }
-[[objects]]
-shape = "sphere"
-center = [-0.9, 0.45, 2.0]
-radius = 0.45
-[[objects]]
-shape = "sphere"
-center = [0.5, 0.45, 0]
-radius = 0.45
-[[lights]]
-type = "constant"
-radiance = [0.6, 0.6, 0.6]
-[[lights]]
-type = "point"
-position = [2, 4, 3]
-intensity = [30, 30, 30]
-"""
 BALL = (
     DOF.replace('effects = ["direct", "dof"]', 'effects = ["direct"]')
     .replace('type = "thinlens"', 'type = "pinhole"')
