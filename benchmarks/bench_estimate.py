@@ -193,6 +193,7 @@ def synthetic_study(
     mu = synthetic_truth(size)
     a, b, va, vb = synthetic_halves(mu, spp, noise, trials, gen)
     bias: dict[str, float] = {}
+    bias_wins: dict[str, tuple[float, float]] = {}
     spread: dict[str, tuple[float, float]] = {}
     est_blocks, true_blocks = [], []
     for name, f in candidate_filters().items():
@@ -202,6 +203,14 @@ def synthetic_study(
         diff = (est - true).mean(dim=(1, 2, 3))  # per trial
         bias[name] = float(diff.mean() / (diff.std() / trials**0.5))
         with_var = (cross_error(da, db, a, b, va, vb) - true).mean(dim=(1, 2, 3))
+        prod = (a - da) * (b - db)  # the winsorised variant of the held-out study
+        cap = 9 * (va * vb).sqrt()
+        wins = est - prod + torch.maximum(torch.minimum(prod, cap), -cap)
+        dw = (wins - true).mean(dim=(1, 2, 3))
+        bias_wins[name] = (
+            float(dw.mean() / (dw.std() / trials**0.5)),
+            float(dw.mean()) / float(true.mean()),
+        )
         scale = float(true.mean())
         spread[name] = (float(diff.std()) / scale, float(with_var.std()) / scale)
         est_blocks.append(torch.stack([block_means(e, block)[0] for e in est]))
@@ -217,6 +226,7 @@ def synthetic_study(
     return {
         "noise": noise,
         "bias_in_se": bias,
+        "bias_wins": bias_wins,
         "spread": spread,
         "argmin_agree": argmin,
         "pair_agree": agree / pairs,
@@ -234,6 +244,8 @@ def synthetic(args: argparse.Namespace) -> int:
             f"{noise:10s} spp {args.spp}: relative spread over trials (A-B)²/variance "
             f"buffers: {spreads}"
         )
+        wins = ", ".join(f"{k} {z:+.1f} ({rel:+.1%})" for k, (z, rel) in r["bias_wins"].items())
+        print(f"{noise:10s} spp {args.spp}: winsorised product: bias/SE (relative) {wins}")
         print(
             f"{noise:10s} spp {args.spp}: bias/SE {biases}; per {args.block}x{args.block} "
             f"block: best candidate agrees {r['argmin_agree']:.3f}, "
@@ -267,24 +279,23 @@ def heldout_records(
     *,
     ref_dir: Path | None = None,
     images: list[str] | None = None,
+    cache: Path | None = None,
 ) -> list[dict]:
     """One record per (image, level, method); ``done`` holds records already measured
-    (keyed ``image/spp/method``), which are kept. Besides the estimate ``--estimate-error``
-    writes (``estimate``: relMSE normalised by the method's own output), ``estimate_shared``
-    normalises every method of an image by one pseudo-reference, the pixelwise median of the
-    denoisers' outputs (what a report over several methods can do), and ``estimate_oracle``
-    by the true reference (a diagnostic: what is left is the error of the squared-error
-    estimate itself)."""
+    (keyed ``image/spp/method``), which are kept; ``cache``: a folder keeping every image's
+    halves, reference and the methods' outputs (full and per half) as ``.pt``, so that other
+    estimators are measured on the same outputs without denoising again. Every estimator of
+    :func:`variant_estimates` is recorded as ``estimate_<name>``; ``estimate`` is what
+    ``--estimate-error`` writes (normalised by the method's own output)."""
     import time
 
     import torch
 
     from mcdenoise.denoise import denoise
     from mcdenoise.errors import McdenoiseError
-    from mcdenoise.eval.estimate import estimate_from_outputs, split_halves, squared_error
+    from mcdenoise.eval.estimate import estimate_from_outputs, matched_normaliser, split_halves
     from mcdenoise.io import load_buffers
     from mcdenoise.io.buffers import sanitize
-    from mcdenoise.losses import RELMSE_EPS
     from mcdenoise.render.manifest import load_manifest
 
     records = []
@@ -306,10 +317,13 @@ def heldout_records(
                 continue
             fb, _ = sanitize(load_buffers(data / img["files"]["noisy"], part=f"spp{level}"))
             ha, hb = split_halves(fb)
-            a, b = fb["color_a"].double(), fb["color_b"].double()
-            va, vb = fb["color_a_var"].double(), fb["color_b_var"].double()
+            cfile = cache / f"{img['id']}_spp{level}.pt" if cache is not None else None
             outs: dict = {}
+            if cfile is not None and cfile.is_file():
+                outs = torch.load(cfile)["outs"]
             for method, key in zip(methods, keys):
+                if method in outs:
+                    continue
                 t0 = time.perf_counter()
                 try:
                     if method == "noisy":
@@ -322,31 +336,24 @@ def heldout_records(
                     print(f"{key}: skipped: {' '.join(str(err).split())}", file=sys.stderr)
                     continue
                 outs[method] = (full, out_a, out_b, time.perf_counter() - t0)
-            denoised = [o[0].double() for m, o in outs.items() if m != "noisy"]
-            shared = torch.stack(denoised).median(0).values if denoised else None
+            if cfile is not None:
+                cfile.parent.mkdir(parents=True, exist_ok=True)
+                keep = {n: fb[n] for n in ("color", "color_a", "color_b", "color_a_var",
+                                           "color_b_var")}  # fmt: skip
+                torch.save({"fb": keep, "ref": ref, "ref_var": ref_var, "outs": outs}, cfile)
+            outs = {m: outs[m] for m in methods if m in outs}
+            variants = variant_estimates(fb, outs, ref)
             for method, (full, out_a, out_b, seconds) in outs.items():
-                est = estimate_from_outputs(out_a, out_b, fb, output=full)
+                norm = matched_normaliser(full, fb["color"])  # what --estimate-error does
+                est = estimate_from_outputs(out_a, out_b, fb, output=full, normaliser=norm)
                 est_mean = estimate_from_outputs(out_a, out_b, fb)
-                sq = squared_error(out_a.double(), out_b.double(), a, b)
-                # the common term from both the difference and the halves' variances
-                sq_avg = sq + 0.25 * (a - b).square() - 0.25 * (va + vb)
-
-                def rel(d, sq=sq):
-                    return max(float((sq / (d.square() + RELMSE_EPS)).mean()), 0.0)
-
-                def rel_avg(d, sq=sq_avg):
-                    return max(float((sq / (d.square() + RELMSE_EPS)).mean()), 0.0)
-
                 true, true_corr = _relmse_terms(full, ref, ref_var)
                 mean_true, mean_corr = _relmse_terms((out_a + out_b) / 2, ref, ref_var)
                 rec = {
                     "image": img["id"], "spp": level, "method": method,
                     "estimate": est.relmse, "estimate_se": est.relmse_se,
                     "estimate_halves_mean": est_mean.relmse,
-                    "estimate_shared": rel(shared) if shared is not None else est.relmse,
-                    "estimate_oracle": rel(ref),
-                    "estimate_avg": rel_avg(full.double()),
-                    "estimate_avg_oracle": rel_avg(ref),
+                    **{f"estimate_{k}": v for k, v in variants[method].items()},
                     "true": true, "true_corrected": true_corr,
                     "halves_mean_true": mean_true, "halves_mean_corrected": mean_corr,
                     "seconds": round(seconds, 3),
@@ -355,11 +362,69 @@ def heldout_records(
                 done[f"{img['id']}/{level}/{method}"] = rec
                 print(
                     f"{img['id']}/{level}/{method}: estimate {est.relmse:.4g} "
-                    f"± {est.relmse_se:.2g} (shared {rec['estimate_shared']:.4g}, oracle "
+                    f"± {est.relmse_se:.2g} (shared {rec.get('estimate_shared_med_matched', 0):.4g}, oracle "
                     f"{rec['estimate_oracle']:.4g}), true {true:.4g} (corrected {true_corr:.4g})",
                     file=sys.stderr,
                 )
     return records
+
+
+def variant_estimates(fb, outs: dict, ref) -> dict[str, dict[str, float]]:
+    """Per method (``outs``: method -> (full, out_a, out_b, seconds)), the relMSE estimate
+    of each variant. The squared-error form: ``½(A − B)²`` for the common term (what the
+    library uses), or with ``avg_``, its mean with the halves' variance buffers; with
+    ``wins_``, the product of the two halves' residuals clipped at ±9 √(v_A v_B) (a robust
+    variant, biased: ``synthetic`` measures how much). The normaliser: ``own`` the method's
+    output (what ``--estimate-error`` wrote until the matched normaliser), ``matched`` its
+    :func:`~mcdenoise.eval.estimate.matched_normaliser` (what it writes now), ``matched_r1``
+    the same over 3×3, ``plus`` its one-sided form (energy only added back), ``max_box``
+    ``max(output, box5(input))``; ``shared`` the torch (lower) median of the denoisers'
+    outputs (last session's), ``shared_med`` the proper median
+    (:func:`~mcdenoise.eval.estimate.pseudo_reference`), ``shared_matched`` that matched
+    (what ``mcdenoise eval`` without ``--ref`` uses for several outputs), ``shared_*`` as for
+    the output; ``oracle`` the reference (a diagnostic)."""
+    import torch
+
+    from mcdenoise.eval.estimate import matched_normaliser, pseudo_reference, squared_error
+    from mcdenoise.filters.box import box_mean
+    from mcdenoise.losses import RELMSE_EPS
+
+    a, b = fb["color_a"].double(), fb["color_b"].double()
+    va, vb = fb["color_a_var"].double(), fb["color_b_var"].double()
+    x = fb["color"].double()
+    denoised = [o[0].double() for m, o in outs.items() if m != "noisy"]
+    box2 = lambda t: box_mean(t[None], 2)[0]  # noqa: E731
+
+    def normalisers(img, tag):
+        return {
+            tag: img,
+            f"{tag}_matched": matched_normaliser(img, x),
+            f"{tag}_matched_r1": matched_normaliser(img, x, 1),
+            f"{tag}_plus": img + box2(x - img).clamp_min(0),
+            f"{tag}_max_box": torch.maximum(img, box2(x)),
+        }
+
+    shared: dict = {}
+    if denoised:
+        shared = normalisers(pseudo_reference(denoised), "shared_med")
+        shared["shared"] = torch.stack(denoised).median(0).values
+    res: dict[str, dict[str, float]] = {}
+    for method, (full, out_a, out_b, _s) in outs.items():
+        full, out_a, out_b = full.double(), out_a.double(), out_b.double()
+        sq = squared_error(out_a, out_b, a, b)
+        sq_avg = sq + 0.25 * (a - b).square() - 0.25 * (va + vb)
+        prod = (a - out_a) * (b - out_b)  # sq = ¼(D_A − D_B)² + this product (docs)
+        cap = 9 * (va * vb).sqrt()
+        sq_wins = sq - prod + torch.maximum(torch.minimum(prod, cap), -cap)
+        norms = {**normalisers(full, "own"), **shared, "oracle": ref}
+        r = {}
+        for form, e in (("", sq), ("avg_", sq_avg), ("wins_", sq_wins)):
+            for name, d in norms.items():
+                if form and name not in ("own_matched", "shared_med_matched", "oracle"):
+                    continue
+                r[form + name] = max(float((e / (d.square() + RELMSE_EPS)).mean()), 0.0)
+        res[method] = r
+    return res
 
 
 def _spearman(x: list[float], y: list[float]) -> float:
@@ -420,7 +485,14 @@ def analyse(records: list[dict], truth: str = "true_corrected", estimate: str = 
     return out
 
 
-def _print_analysis(a: dict) -> None:
+def _print_analysis(a: dict, brief: bool = False) -> None:
+    if brief:  # one line: within-factor and rho per level
+        cells = "  ".join(
+            f"{level}: {v['within_factor']:.3f} {v['spearman_mean']:.3f}"
+            for level, v in a["levels"].items()
+        )
+        print(f"{a['estimate']:26s} vs {a['truth']:16s} {cells}")
+        return
     print(f"estimate '{a['estimate']}' against truth '{a['truth']}':")
     for level, v in a["levels"].items():
         print(
@@ -455,21 +527,18 @@ def heldout(args: argparse.Namespace) -> int:
             done,
             ref_dir=Path(args.ref_dir) if args.ref_dir else None,
             images=args.images.split(",") if args.images else None,
+            cache=Path(args.cache) if args.cache else None,
         )
         if args.json:
             Path(args.json).write_text(json.dumps({"records": records}, indent=1))
     have = set.intersection(*(set(r) for r in records)) if records else set()
-    for truth, est in (
-        ("true_corrected", "estimate"),
-        ("true", "estimate"),
-        ("true_corrected", "estimate_shared"),
-        ("true_corrected", "estimate_oracle"),
-        ("true_corrected", "estimate_avg"),
-        ("true_corrected", "estimate_avg_oracle"),
-        ("halves_mean_corrected", "estimate_halves_mean"),
-    ):
-        if est in have:
-            _print_analysis(analyse(records, truth, est))
+    pairs = [("true_corrected", "estimate"), ("true", "estimate")]
+    pairs += [("true_corrected", k) for k in sorted(have) if k.startswith("estimate_")
+              and k not in ("estimate_se", "estimate_halves_mean")]  # fmt: skip
+    pairs += [("halves_mean_corrected", "estimate_halves_mean")]
+    for truth, est in pairs:
+        if est in have and (not args.only or est in args.only.split(",")):
+            _print_analysis(analyse(records, truth, est), brief=args.brief)
     return 0
 
 
@@ -503,6 +572,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ho.add_argument("--images", default=None, help="only these image ids (comma-separated)")
     ho.add_argument("--json", default=None, help="write (and resume from) every record here")
+    ho.add_argument("--cache", default=None, help="keep the outputs here (.pt per image, level)")
+    ho.add_argument("--brief", action="store_true", help="one line per estimator")
+    ho.add_argument("--only", default=None, help="only these estimators (comma-separated)")
     ho.add_argument(
         "--from-json", nargs="+", default=None, help="only analyse the records of these files"
     )

@@ -191,11 +191,15 @@ def eval_cmd(
 
 
 def _estimated(outputs, out_dir):
-    """No reference: every output's relMSE as `denoise --estimate-error` estimated it from the
-    input's half buffers (mcdenoise.eval.estimate), printed and, with -o, written as a report."""
+    """No reference: every output's relMSE estimated from its input's half buffers
+    (mcdenoise.eval.estimate): with several outputs of one input, all normalised by the median
+    of those outputs (each method runs again on the halves); one output alone keeps what
+    `denoise --estimate-error` recorded. Printed and written as a report in -o."""
     from mcdenoise.eval.estimate import estimate_files, format_estimates, write_estimate_report
 
-    rows = estimate_files(list(outputs))
+    rows = estimate_files(
+        list(outputs), log=lambda line: click.echo(f"mcdenoise: {line}", err=True)
+    )
     if not any(r["relmse_estimated"] is not None for r in rows if r["method"] != "noisy"):
         raise click.UsageError(
             "Missing option '--ref': no output here carries an estimated error (denoise an "

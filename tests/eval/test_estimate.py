@@ -147,3 +147,30 @@ def test_estimate_error_runs_the_denoiser_on_each_half() -> None:
     assert est.relmse == pytest.approx(max(float(rel), 0.0), rel=1e-5)
     full = estimate_from_outputs(da, db, fb, output=fb["color"], block=8)
     assert full.judged == "full" and full.to_dict()["estimate_of"] == "full"
+
+
+def test_pseudo_reference_is_the_pixelwise_median() -> None:
+    from mcdenoise.eval.estimate import pseudo_reference
+
+    x = torch.tensor([1.0, 5.0, 2.0])[:, None, None, None] * torch.ones(3, 3, 2, 2)
+    assert torch.equal(pseudo_reference(list(x)), torch.full((3, 2, 2), 2.0, dtype=torch.float64))
+    # an even count: the mean of the middle two (two outputs: their mean), not torch's lower
+    pr = pseudo_reference([x[0], x[1]])
+    assert torch.equal(pr, torch.full((3, 2, 2), 3.0, dtype=torch.float64))
+    # one output far off does not move it
+    far = pseudo_reference([x[0], x[2], x[2] * 100])
+    assert torch.equal(far, torch.full((3, 2, 2), 2.0, dtype=torch.float64))
+
+
+def test_matched_normaliser_puts_back_what_the_denoiser_removed() -> None:
+    from mcdenoise.eval.estimate import matched_normaliser
+
+    out = torch.full((3, 9, 9), 0.5)
+    assert torch.allclose(matched_normaliser(out, out), out.double())
+    noisy = out.clone()
+    noisy[:, 4, 4] = 25.5  # a highlight bright in the input, gone from the output
+    n = matched_normaliser(out, noisy)
+    # spread over the 5x5 window around it, its energy kept; untouched farther away
+    assert torch.allclose(n[:, 2:7, 2:7], torch.full((3, 5, 5), 1.5, dtype=torch.float64))
+    assert torch.allclose(n[:, 0], torch.full((3, 9), 0.5, dtype=torch.float64))
+    assert float(n.sum()) == pytest.approx(float(noisy.double().sum()))

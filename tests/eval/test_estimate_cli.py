@@ -42,6 +42,7 @@ def test_estimate_in_header_and_json(tmp_path: Path) -> None:
     rec = json.loads(r.stdout.strip().splitlines()[-1])
     assert rec["relmse_estimated"] >= 0 and rec["relmse_estimated_se"] > 0
     assert rec["estimate_of"] == "full"
+    assert rec["estimate_normaliser"].startswith("own output")
     attrs = probe_exr(out)[0].attributes
     assert attrs["mcdenoise:relmse_estimated"] == pytest.approx(rec["relmse_estimated"])
     assert "mcdenoise:relmse_estimated_se" in attrs
