@@ -506,7 +506,7 @@ def _renormalise(
             relmse_estimated=est.relmse,
             relmse_estimated_se=est.relmse_se,
             normaliser=shared,
-            note=f"header (own output): {float(row['relmse_estimated']):.4g}",
+            note=f"header value {float(row['relmse_estimated']):.4g} ({row['normaliser']})",
         )
 
 
@@ -581,7 +581,8 @@ def write_estimate_report(
         f"<h1>Estimated relMSE (no reference)</h1><p><b>{html.escape(note)}.</b> "
         "± is one standard error over 16×16 blocks. <i>normaliser</i>: what relMSE divides "
         "by — the median of the outputs of one input when several are given (every method "
-        "judged against the same image), else the output itself.</p>"
+        "judged against the same image), else the output itself; either with its 5×5 local "
+        "mean matched to the noisy input's.</p>"
         f"<table border='1'><tr>{head}</tr>{cells}</table>",
         encoding="utf-8",
     )

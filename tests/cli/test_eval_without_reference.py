@@ -32,6 +32,8 @@ def run(*args: str):
 
 
 def test_eval_without_ref_reports_the_estimates(tmp_path: Path) -> None:
+    from mcdenoise.eval.estimate import OWN
+
     src = _noisy_with_halves(tmp_path / "in.exr")
     outs = tmp_path / "outs"
     outs.mkdir()
@@ -51,7 +53,8 @@ def test_eval_without_ref_reports_the_estimates(tmp_path: Path) -> None:
         # two outputs of one input: both normalised by their median (their mean), the
         # method run again on the halves; the header's own-normalised value in the note
         assert methods[m]["normaliser"].startswith("median of 2 outputs"), methods[m]
-        assert methods[m]["note"].startswith("header (own output): ")
+        assert methods[m]["note"].startswith("header value "), methods[m]
+        assert methods[m]["note"].endswith(f"({OWN})")
     assert methods["noisy"]["normaliser"] == methods["nlm"]["normaliser"]
     assert "normalised by" in r.stdout and "median of 2 outputs" in r.stdout
     assert "normaliser" in (tmp_path / "rep" / "estimate.html").read_text(encoding="utf-8")
