@@ -174,3 +174,11 @@ def test_matched_normaliser_puts_back_what_the_denoiser_removed() -> None:
     assert torch.allclose(n[:, 2:7, 2:7], torch.full((3, 5, 5), 1.5, dtype=torch.float64))
     assert torch.allclose(n[:, 0], torch.full((3, 9), 0.5, dtype=torch.float64))
     assert float(n.sum()) == pytest.approx(float(noisy.double().sum()))
+
+
+def test_difference_form_is_spread_plus_product_of_residuals() -> None:
+    """``ê = ¼(D_A − D_B)² + (A − D_A)(B − D_B)`` (the module docstring's decomposition)."""
+    g = torch.Generator().manual_seed(3)
+    a, b, da, db = (torch.rand(3, 5, 5, generator=g, dtype=torch.float64) for _ in range(4))
+    want = 0.25 * (da - db).square() + (a - da) * (b - db)
+    torch.testing.assert_close(squared_error(da, db, a, b), want)
