@@ -10,9 +10,9 @@ This is the per-pixel MLP of the paper, not a convolutional equivalent. Why: the
 point is that the sample pattern scales with the *projected AO radius* (``f r / z`` pixels),
 so the same weights see the same world-space neighbourhood at every depth; a convolution has a
 fixed pixel footprint and would have to learn every scale of the radius, from far less data
-than the 16 training images here give. The MLP with a radius-scaled pattern also has
-SSAO's cost structure (a few texture fetches per pixel plus a small matrix product), which is
-what the comparison with the screen-space methods asks for.
+than the 256 training images here give (``data/recipes/nnao.md``). The MLP with a
+radius-scaled pattern also has SSAO's cost structure (a few texture fetches per pixel plus a
+small matrix product), which is what the comparison with the screen-space methods asks for.
 
 Differences from the paper, and why:
 

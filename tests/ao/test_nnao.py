@@ -1,12 +1,14 @@
 """nnao (Holden et al. 2016): the model's range, the shipped weights on closed forms, the method
 on a real AO render.
 
-Measured with the shipped weights (1 thread): a flat floor 1 unit below the camera (radius
-0.5; closed form: AO 1) gives mean / minimum 0.966 / 0.873 at pitch 30° and 0.885 / 0.748 at
-pitch 60° (with the default blur) -- a documented bias of the learned estimator (the sigmoid never reaches 1 and the
-16 training images hold little open floor seen from so close; the lowest values are at the
-image border, where samples fall off screen). ``ao_contact_48x36``: SSIM 0.873, relMSE 0.0139
-(ssao 0.848 / 0.0396, gtao 0.869 / 0.0204 on the same file, ``test_ao_render.py``).
+Measured with the shipped weights (1 thread; 256 random AO scenes of seed 4000, hidden 64, 32:
+``data/recipes/nnao.md``): a flat floor 1 unit below the camera (radius 0.5; closed form: AO
+1) gives mean / minimum 0.987 / 0.951 at pitch 30° and 0.925 / 0.796 at pitch 60° (with the
+default blur) -- a bias of the learned estimator (the sigmoid never reaches 1; the lowest
+values are at the image border, where samples fall off screen). ``ao_contact_48x36``: SSIM
+0.915, relMSE 0.0144 (ssao 0.848 / 0.0396, gtao 0.869 / 0.0204 on the same file,
+``test_ao_render.py``). The weights of 16 scenes before them gave 0.966 / 0.873, 0.885 /
+0.748 and 0.873 / 0.0139.
 """
 
 from __future__ import annotations
@@ -28,9 +30,9 @@ from mcdenoise.models.weights import shipped_model_path
 HERE = Path(__file__).resolve().parent
 RADIUS = 0.5
 #: Flat plane with the shipped weights: lowest allowed mean and minimum AO (measured: docstring).
-FLAT_MEAN, FLAT_MIN = 0.87, 0.7
+FLAT_MEAN, FLAT_MIN = 0.9, 0.75
 #: ao_contact_48x36 with the shipped weights: lowest SSIM, highest relMSE (measured: docstring).
-RENDER_SSIM, RENDER_RELMSE = 0.84, 0.02
+RENDER_SSIM, RENDER_RELMSE = 0.89, 0.02
 
 
 def _discontinuous_gbuffer():
@@ -96,3 +98,42 @@ def test_shipped_weights_on_a_real_ao_render():
     assert x.shape == ref.shape
     assert np.isfinite(x).all() and x.min() >= 0 and x.max() <= 1
     assert ssim(x, ref) > RENDER_SSIM and relmse(x, ref) < RENDER_RELMSE
+
+
+def test_trainer_learns_the_ao_of_a_real_render_and_exports_a_loadable_model(tmp_path):
+    # Two copies of ao_contact_48x36 (one trained on, one validated by image): 200 steps of a
+    # tiny MLP lower the MSE well below the untrained model's (which starts near "unoccluded"):
+    # measured 0.0179 -> 0.0080; required: below 0.7x.
+    import shutil
+
+    from mcdenoise.train.nnao import SAMPLES, prepare
+    from mcdenoise.train.trainers import train_model
+
+    data = tmp_path / "data"
+    (data / "ref").mkdir(parents=True)
+    for name in ("a", "b"):
+        shutil.copy(HERE / "ao_contact_48x36.exr", data / f"{name}.exr")
+        shutil.copy(HERE / "ao_contact_48x36_ref.exr", data / "ref" / f"{name}.exr")
+    torch.manual_seed(0)
+    untrained = NnaoModel(NnaoCard(samples=SAMPLES, hidden=[8]))
+    fb = load_buffers(data / "a.exr")
+    t = prepare(fb, load_buffers(data / "ref" / "a.exr")["color"])
+    m = t["valid"][0] > 0
+    x, y = t["inputs"].permute(1, 2, 0)[m], t["reference"][0][m]
+    with torch.no_grad():
+        before = float(torch.mean((untrained(x) - y) ** 2))
+    overrides = {"hidden": "8", "val_fraction": "0.5", "epoch_steps": "100", "threads": "1"}
+    train_model(
+        tmp_path / "run",
+        model="nnao",
+        data=str(data),
+        steps=200,
+        overrides=overrides,
+        progress=False,
+    )
+    model = NnaoModel.load(tmp_path / "run" / "model.pt")
+    training = model.card.training
+    assert len(training["train_images"]) == 1 and len(training["val_images"]) == 1
+    assert training["validation"]["val_loss"] < 0.7 * before
+    with torch.no_grad():
+        assert float(torch.mean((model(x) - y) ** 2)) < 0.7 * before
