@@ -10,11 +10,17 @@ the manifest (the spec's camera and ``render.ao_radius``).
     python benchmarks/bench_ao.py DIR [--threads 1] [--repeat 2]
     python benchmarks/bench_ao.py --speed 512 [--threads 1]
     python benchmarks/bench_ao.py DIR --random-ao 6 --seed 3000   # render them first
+    python benchmarks/bench_ao.py DIR --val-of RUN --nnao-param blur=false
 
 ``--random-ao N`` first renders (into DIR, 128×96, 4/16/64 spp, 1024-spp references) the
 first N scenes of the random generator with ``--seed`` whose archetype is ``ao``: a held-out
 set no AO parameter was chosen on; with ``--render-only`` it stops there (the nnao training
 set of ``data/recipes/nnao.md``).
+
+``--val-of RUN`` keeps only the validation images of the nnao training run ``RUN`` (its model
+card's ``val_images``: choices about nnao are made there, never on the held-out sets);
+``--nnao-param KEY=VALUE`` (repeatable) sets nnao's parameters (e.g. ``blur=false``). The
+last lines give each method's mean SSIM and relMSE over the images.
 
 ``--speed N`` times the five methods alone on a synthetic N×N G-buffer (a floor and two
 walls seen from a camera pitched 25° down) and prints CPU ms per frame and per megapixel.
@@ -135,6 +141,10 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=2, help="timed runs per method (best kept)")
     ap.add_argument("--nnao-model", default=SHIPPED, help="nnao model file or run folder")
+    ap.add_argument(
+        "--nnao-param", action="append", default=[], metavar="KEY=VALUE", help="nnao parameter"
+    )
+    ap.add_argument("--val-of", metavar="RUN", help="only the validation images of nnao run RUN")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     if args.speed:
@@ -147,6 +157,18 @@ def main() -> None:
         if args.render_only:
             return
     manifest = json.loads((args.folder / "manifest.json").read_text())
+    nnao_params: dict[str, str] = {"model": args.nnao_model}
+    for item in args.nnao_param:
+        key, eq, value = item.partition("=")
+        if not eq:
+            ap.error(f"--nnao-param wants KEY=VALUE, got {item!r}")
+        nnao_params[key] = value
+    keep = None
+    if args.val_of:
+        keep = set(load_nnao(args.val_of).card.training.get("val_images", []))
+        if not keep:
+            ap.error(f"{args.val_of}: the model card lists no validation images")
+    sums: dict[str, list[float]] = {}
     print(
         f"threads {args.threads}; SSIM and relMSE against the reference; ms best of {args.repeat}"
     )
@@ -158,6 +180,8 @@ def main() -> None:
         if "ao" not in record.get("effects", []):
             continue
         image = record["id"]
+        if keep is not None and image not in keep:
+            continue
         ref = load_buffers(args.folder / record["files"]["reference"])["color"].numpy()
         for level in record["levels"]:
             fb = load_buffers(args.folder / record["files"]["noisy"], part=level["part"])
@@ -174,7 +198,7 @@ def main() -> None:
             fb.attributes[CAMERA_ATTR] = _camera_from_manifest(record)
         mp = fb.width * fb.height / 1e6
         for method in (*METHODS, NNAO):
-            params = method.resolve_params({"model": args.nnao_model} if method is NNAO else None)
+            params = method.resolve_params(nnao_params if method is NNAO else None)
             best, best_cpu = float("inf"), float("inf")
             for _ in range(max(1, args.repeat)):
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -182,11 +206,17 @@ def main() -> None:
                 best = min(best, time.perf_counter() - t0)
                 best_cpu = min(best_cpu, time.process_time() - c0)
             x = out.numpy()
+            acc = sums.setdefault(method.name, [0.0, 0.0, 0.0])
+            acc[0] += ssim(x, ref)
+            acc[1] += relmse(x, ref)
+            acc[2] += 1
             print(
                 f"{image:<22} {method.name:<14} {ssim(x, ref):6.3f} {relmse(x, ref):8.4f} "
                 f"{1000 * best:8.0f} {1000 * best / mp:9.0f} "
                 f"{1000 * best_cpu:8.0f} {1000 * best_cpu / mp:10.0f}"
             )
+    for name, (s_ssim, s_rel, n) in sums.items():
+        print(f"mean of {int(n)} images {name:<8} {s_ssim / n:6.3f} {s_rel / n:8.4f}")
 
 
 if __name__ == "__main__":
