@@ -280,6 +280,7 @@ def heldout_records(
     ref_dir: Path | None = None,
     images: list[str] | None = None,
     cache: Path | None = None,
+    block: int = 16,
 ) -> list[dict]:
     """One record per (image, level, method); ``done`` holds records already measured
     (keyed ``image/spp/method``), which are kept; ``cache``: a folder keeping every image's
@@ -345,15 +346,26 @@ def heldout_records(
             variants = variant_estimates(fb, outs, ref)
             for method, (full, out_a, out_b, seconds) in outs.items():
                 norm = matched_normaliser(full, fb["color"])  # what --estimate-error does
-                est = estimate_from_outputs(out_a, out_b, fb, output=full, normaliser=norm)
+                est = estimate_from_outputs(
+                    out_a, out_b, fb, output=full, normaliser=norm, block=block
+                )
                 est_mean = estimate_from_outputs(out_a, out_b, fb)
+                shared = variants[method].get("_shared")  # what eval without --ref divides by
+                shared_se = (
+                    estimate_from_outputs(
+                        out_a, out_b, fb, output=full, normaliser=shared, block=block
+                    ).relmse_se
+                    if shared is not None
+                    else float("nan")
+                )
                 true, true_corr = _relmse_terms(full, ref, ref_var)
                 mean_true, mean_corr = _relmse_terms((out_a + out_b) / 2, ref, ref_var)
                 rec = {
                     "image": img["id"], "spp": level, "method": method,
                     "estimate": est.relmse, "estimate_se": est.relmse_se,
                     "estimate_halves_mean": est_mean.relmse,
-                    **{f"estimate_{k}": v for k, v in variants[method].items()},
+                    **{f"estimate_{k}": v for k, v in variants[method].items() if k[0] != "_"},
+                    "estimate_shared_med_matched_se": shared_se,
                     "true": true, "true_corrected": true_corr,
                     "halves_mean_true": mean_true, "halves_mean_corrected": mean_corr,
                     "seconds": round(seconds, 3),
@@ -369,7 +381,7 @@ def heldout_records(
     return records
 
 
-def variant_estimates(fb, outs: dict, ref) -> dict[str, dict[str, float]]:
+def variant_estimates(fb, outs: dict, ref) -> dict[str, dict]:
     """Per method (``outs``: method -> (full, out_a, out_b, seconds)), the relMSE estimate
     of each variant. The squared-error form: ``½(A − B)²`` for the common term (what the
     library uses), or with ``avg_``, its mean with the halves' variance buffers; with
@@ -382,7 +394,8 @@ def variant_estimates(fb, outs: dict, ref) -> dict[str, dict[str, float]]:
     outputs (last session's), ``shared_med`` the proper median
     (:func:`~mcdenoise.eval.estimate.pseudo_reference`), ``shared_matched`` that matched
     (what ``mcdenoise eval`` without ``--ref`` uses for several outputs), ``shared_*`` as for
-    the output; ``oracle`` the reference (a diagnostic)."""
+    the output; ``oracle`` the reference (a diagnostic). ``_shared``: the tensor of
+    ``shared_med_matched`` (``None`` without a denoiser)."""
     import torch
 
     from mcdenoise.eval.estimate import matched_normaliser, pseudo_reference, squared_error
@@ -423,6 +436,7 @@ def variant_estimates(fb, outs: dict, ref) -> dict[str, dict[str, float]]:
                 if form and name not in ("own_matched", "shared_med_matched", "oracle"):
                     continue
                 r[form + name] = max(float((e / (d.square() + RELMSE_EPS)).mean()), 0.0)
+        r["_shared"] = shared.get("shared_med_matched")
         res[method] = r
     return res
 
@@ -464,6 +478,11 @@ def analyse(records: list[dict], truth: str = "true_corrected", estimate: str = 
             "pairs": len(rs),
             "within_factor": sum(ok) / len(ok),
             "spearman_mean": sum(rhos) / len(rhos) if rhos else float("nan"),
+            # the truth within ±2 reported standard errors (where the estimate has one)
+            "within_2se": sum(abs(r[estimate] - r[truth]) <= 2 * r[estimate + "_se"] for r in rs)
+            / len(rs)
+            if all(estimate + "_se" in r for r in rs)
+            else float("nan"),
             "images": len(rhos),
         }
     by_method: dict = defaultdict(list)
@@ -497,7 +516,8 @@ def _print_analysis(a: dict, brief: bool = False) -> None:
     for level, v in a["levels"].items():
         print(
             f"  {level:>3} spp: within {FACTOR}x {v['within_factor']:.3f} of {v['pairs']} pairs; "
-            f"Spearman rho {v['spearman_mean']:.3f} (mean of {v['images']} images)"
+            f"Spearman rho {v['spearman_mean']:.3f} (mean of {v['images']} images); "
+            f"truth within 2 SE {v['within_2se']:.2f}"
         )
     for k, v in a["methods"].items():
         print(
@@ -528,13 +548,14 @@ def heldout(args: argparse.Namespace) -> int:
             ref_dir=Path(args.ref_dir) if args.ref_dir else None,
             images=args.images.split(",") if args.images else None,
             cache=Path(args.cache) if args.cache else None,
+            block=args.block,
         )
         if args.json:
             Path(args.json).write_text(json.dumps({"records": records}, indent=1))
     have = set.intersection(*(set(r) for r in records)) if records else set()
     pairs = [("true_corrected", "estimate"), ("true", "estimate")]
     pairs += [("true_corrected", k) for k in sorted(have) if k.startswith("estimate_")
-              and k not in ("estimate_se", "estimate_halves_mean")]  # fmt: skip
+              and not k.endswith("_se") and k != "estimate_halves_mean"]  # fmt: skip
     pairs += [("halves_mean_corrected", "estimate_halves_mean")]
     for truth, est in pairs:
         if est in have and (not args.only or est in args.only.split(",")):
@@ -574,6 +595,7 @@ def main(argv: list[str] | None = None) -> int:
     ho.add_argument("--json", default=None, help="write (and resume from) every record here")
     ho.add_argument("--cache", default=None, help="keep the outputs here (.pt per image, level)")
     ho.add_argument("--brief", action="store_true", help="one line per estimator")
+    ho.add_argument("--block", type=int, default=16, help="block side of the standard errors")
     ho.add_argument("--only", default=None, help="only these estimators (comma-separated)")
     ho.add_argument(
         "--from-json", nargs="+", default=None, help="only analyse the records of these files"
