@@ -195,10 +195,13 @@ def _estimated(outputs, out_dir):
     (mcdenoise.eval.estimate): with several outputs of one input, all normalised by the median
     of those outputs (each method runs again on the halves); one output alone keeps what
     `denoise --estimate-error` recorded. Printed and written as a report in -o."""
+    from mcdenoise.denoise import denoise
     from mcdenoise.eval.estimate import estimate_files, format_estimates, write_estimate_report
 
     rows = estimate_files(
-        list(outputs), log=lambda line: click.echo(f"mcdenoise: {line}", err=True)
+        list(outputs),
+        rerun=lambda half, method, params: denoise(half, method, params=params).image,
+        log=lambda line: click.echo(f"mcdenoise: {line}", err=True),
     )
     if not any(r["relmse_estimated"] is not None for r in rows if r["method"] != "noisy"):
         raise click.UsageError(

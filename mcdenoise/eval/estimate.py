@@ -390,10 +390,14 @@ def estimate_noisy(
     )
 
 
+#: Runs a method again: ``(half input, method name, its recorded parameters) -> (3, H, W)``.
+Rerun = Callable[[FeatureBuffers, str, dict[str, Any]], Tensor]
+
+
 def estimate_files(
     outputs: Sequence[str | os.PathLike[str]],
     *,
-    device: str = "auto",
+    rerun: Rerun | None = None,
     log: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """One row per output of ``mcdenoise denoise`` (files or folders of them), and one
@@ -403,12 +407,14 @@ def estimate_files(
 
     Where two or more outputs of one input with halves are given, every one of them (and the
     noisy input) is normalised by one :func:`pseudo_reference`, the pixelwise median of those
-    outputs: the method recorded in each output's header (``mcdenoise:method``,
-    ``mcdenoise:params``) runs again on each half of the source to get the per-pixel squared
-    error (``--estimate-error`` keeps only its scalar), so this costs two runs of every method;
-    ``log`` is told before each. One output alone, or a method that cannot run again, keeps the
-    estimate ``--estimate-error`` recorded in its header (normalised by the output itself). An
-    output without an estimate gets a row whose note says so.
+    outputs (:func:`matched_normaliser` of it): ``rerun`` runs the method recorded in each
+    output's header (``mcdenoise:method``, ``mcdenoise:params``) again on each half of the
+    source to get the per-pixel squared error (``--estimate-error`` keeps only its scalar),
+    so this costs two runs of every method; ``log`` is told before each. (``rerun`` is
+    passed in, e.g. by ``mcdenoise eval``, so that this module does not import the denoisers.)
+    One output alone, no ``rerun``, or a method that cannot run again keeps the estimate
+    ``--estimate-error`` recorded in its header (normalised by the output itself). An output
+    without an estimate gets a row whose note says so.
     """
     from mcdenoise.io import load_buffers, probe_exr
     from mcdenoise.io.buffers import sanitize
@@ -455,8 +461,8 @@ def estimate_files(
         colors = [load_buffers(o)["color"] for o, _ in outs]
         pseudo = matched_normaliser(pseudo_reference(colors), sanitize(fb)[0]["color"])
         shared = f"median of {len(colors)} outputs, {MATCHED}"
-        if len(colors) > 1:
-            _renormalise(fb, outs, pseudo, shared, device, log)
+        if len(colors) > 1 and rerun is not None:
+            _renormalise(fb, outs, pseudo, shared, rerun, log)
         est = estimate_noisy(fb, pseudo)
         rows.append(
             {
@@ -484,7 +490,7 @@ def _renormalise(
     outs: Sequence[tuple[Path, dict[str, Any]]],
     pseudo: Tensor,
     shared: str,
-    device: str,
+    rerun: Rerun,
     log: Callable[[str], None] | None,
 ) -> None:
     """Each output's row of ``outs`` re-estimated with ``pseudo`` as normaliser: its method
@@ -492,7 +498,6 @@ def _renormalise(
     keeps its own-normalised estimate, with a note saying why."""
     import json
 
-    from mcdenoise.denoise import denoise
     from mcdenoise.io.buffers import sanitize
 
     half_a, half_b = split_halves(fb)
@@ -506,8 +511,7 @@ def _renormalise(
             params = json.loads(str(attrs.get("mcdenoise:params") or "{}"))
             if log is not None:
                 log(f"{f.name}: {method} on each half of its source (shared normaliser)")
-            out_a = denoise(half_a, method, params=params, device=device).image
-            out_b = denoise(half_b, method, params=params, device=device).image
+            out_a, out_b = rerun(half_a, method, params), rerun(half_b, method, params)
         except (McdenoiseError, ValueError) as err:
             row["note"] = (
                 f"own normaliser: {method} did not run again: {' '.join(str(err).split())}"

@@ -84,6 +84,10 @@ def test_reference_free_report_of_several_methods(tmp_path: Path) -> None:
     assert {m for m, _ in by} == {"noisy", "cross-bilateral", "nlm"}
     assert all(r["estimated"] for r in rows)
     assert by[("nlm", False)]["relmse_estimated"] >= 0
+    # without a way to run the methods again, each keeps its header's own-normalised value
+    from mcdenoise.eval.estimate import OWN
+
+    assert by[("nlm", False)]["normaliser"] == OWN and by[("nlm", False)]["note"] == ""
     assert by[("noisy", False)]["relmse_estimated"] > by[("nlm", False)]["relmse_estimated"]
     assert "--estimate-error" in by[("cross-bilateral", True)]["note"]
     paths = write_estimate_report(rows, tmp_path / "report")
