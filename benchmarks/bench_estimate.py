@@ -35,7 +35,10 @@ and how well the estimate matches the true error on held-out renders.
     of Spearman's ρ between the estimated and the true ranking of the methods, and per
     method the geometric mean of estimate / truth and of the full output's relMSE over the
     halves-mean's (the carry-over). ``--json`` keeps every record (re-analyse with
-    ``--from-json``).
+    ``--from-json``); ``--cache DIR`` keeps the outputs, so the estimators of
+    :func:`variant_estimates` (normalisers, common terms) are measured again without
+    denoising; ``--brief`` prints one line per estimator, ``--only`` picks some, ``--block``
+    sets the block of the standard errors (the "truth within 2 SE" column).
 """
 
 from __future__ import annotations
