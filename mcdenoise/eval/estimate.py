@@ -196,23 +196,20 @@ MATCH_RADIUS = 2
 def matched_normaliser(image: Tensor, noisy: Tensor, radius: int = MATCH_RADIUS) -> Tensor:
     """What relMSE divides by without a reference: ``image`` (a denoised output, or the
     :func:`pseudo_reference` of several) with its local mean put back to the noisy input's,
-    ``image + box(noisy − image)`` over a ``(2·radius + 1)²`` window.
+    ``image + box(noisy − image)`` over a ``(2·radius + 1)²`` window (in-image box mean).
+    ``image``, ``noisy``: ``(C, H, W)`` linear radiance; returns float64 ``(C, H, W)``.
 
     relMSE divides by the reference squared. A denoised image stands in for it well where
     it is right, but every denoiser removes some real energy as if it were noise: a caustic
     or a small highlight that is bright in both halves (so the squared-error estimate is
     large there) comes out dark, and dividing that error by a near-zero square made two
     pixels of ``caustics_glass`` at 64 spp 91 % of OIDN's estimate (cross-bilateral's read
-    1.6 where its true relMSE is 0.0067).
-    The noisy input's box mean is an unbiased estimate of the reference's box mean (Monte
-    Carlo is unbiased), so the sum brings that energy back spread over the window, keeps the
-    image's detail (``image − box(image)``) and adds only the box mean's noise (its variance
-    ``1/(2r+1)²`` of the input's). On the 13 held-out renders of docs/results/estimate.md it
-    raised the share of estimates within 1.5× of the truth from 0.58/0.56/0.62 to
-    0.65/0.62/0.71 (the output as normaliser) and from 0.67/0.65/0.75 to 0.75/0.75/0.77 (the
-    median of the outputs) at 4/16/64 spp; radius 1, a 3×3 median, ``max(image, box(noisy))``
-    and a one-sided correction were measured beside it (``benchmarks/bench_estimate.py
-    heldout``).
+    1.6 where its true relMSE is 0.0067). The noisy input's box mean is an unbiased estimate
+    of the reference's box mean (Monte Carlo is unbiased), so the sum brings that energy
+    back spread over the window, keeps the image's detail (``image − box(image)``) and adds
+    only the box mean's noise (``1/(2r+1)²`` of the input's variance). The radius, and the
+    forms measured beside it (3×3, one-sided, ``max(image, box(noisy))``), are in
+    docs/results/estimate.md.
     """
     from mcdenoise.filters.box import box_mean
 
@@ -221,17 +218,18 @@ def matched_normaliser(image: Tensor, noisy: Tensor, radius: int = MATCH_RADIUS)
 
 
 def pseudo_reference(outputs: Sequence[Tensor]) -> Tensor:
-    """The pixelwise median of several denoisers' outputs of one input (the mean of the two
-    middle values for an even count, so two outputs give their mean).
+    """The pixelwise median of several denoisers' outputs of one input (each ``(C, H, W)``;
+    float64; for an even count the mean of the two middle values, so two outputs give their
+    mean).
 
     It normalises every output's relMSE estimate when several outputs of one input are
     judged together (:func:`estimate_files`). Each denoiser is wrong somewhere else (one
     blurs a caustic, another leaves fireflies); the median keeps, per pixel, a value between
-    the others, so one failing output does not move it, while the output's own value inflates
-    its square where its residual noise is (the noisy input's fireflies: 0.4–0.6× its true
-    error at 4–64 spp) and deflates it where it darkens. The noisy input is not among the
-    outputs: its noise would bias the square upwards. Measured against the reference on held-out
-    renders in docs/results/estimate.md.
+    the others, so (from three outputs on) one failing output does not move it, while an
+    output's own value inflates its square where its residual noise is (the noisy input's
+    fireflies: 0.4–0.6× its true error at 4–64 spp) and deflates it where it darkens. The
+    noisy input is not among the outputs: its noise would bias the square upwards. Measured
+    against the reference on held-out renders in docs/results/estimate.md.
     """
     x = torch.stack([o.double() for o in outputs])
     n = x.shape[0]
