@@ -53,11 +53,14 @@ from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import relative_squared_error, relmse_map
 from mcdenoise.methods.selection import (
+    blend,
     choose,
+    fixed_neighbours,
     half_buffers,
     has_halves,
     pick,
     shifted_offsets,
+    weights,
 )
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
@@ -119,51 +122,136 @@ def select(outputs: Tensor, score: Tensor, radius: int) -> tuple[Tensor, int]:
 
 
 def half_outputs(
-    model: KalantariModel, b, s: float
-) -> tuple[list[list[Tensor]], list[tuple[Tensor, Tensor]]]:
-    """Every candidate's output ``(1, 3, H, W)`` on half A and on half B (each half's own
-    features and predicted bandwidths, shifted), and each half's colour and variance after
-    the preparation's firefly clamp (the judges :func:`select_kalantari` uses)."""
-    outs, clamped = [], []
+    model: KalantariModel, b, s: float, o_full: Tensor
+) -> tuple[dict[str, Tensor], tuple[Tensor, Tensor, Tensor, Tensor]]:
+    """Every candidate's output ``(1, K, 3, H, W)`` on half A and on half B, with each half's
+    own predicted bandwidths shifted (``a``, ``b``: what :func:`select_kalantari` runs) and
+    with the full buffer's (``a-abs``, ``b-abs``: the bandwidths that will be applied, judged
+    at half the samples), and the halves' colour and variance after the preparation's
+    firefly clamp (the judges :func:`select_kalantari` uses)."""
+    outs: dict[str, Tensor] = {}
+    judges = []
     for h in ("a", "b"):
         half = half_buffers(b, h)
         batch = {k: v[None] for k, v in prepare_for_model(model.card, half).items()}
         o = model.offsets(batch["features"])
-        outs.append([model.filter(batch, oc) for oc in candidates(model, o, s)])
-        f = batch["factor"]
-        clamped.append((batch["irr"] * f, batch["irr_var"] * f.square()))
-    return outs, clamped
-
-
-def halves_rows(
-    model: KalantariModel, b, outs: Tensor, true: Tensor, pilot: Tensor, ref: Tensor, args
-) -> dict[str, float]:
-    """The two-buffer rows of one image (see the module docstring): judged by the clamped
-    halves (``halves-*``, what the method does) and by the raw halves (``halves-raw-block``)."""
-    (outs_a, outs_b), ((ca, cva), (cb, cvb)) = half_outputs(model, b, args.shift)
-    ha, hb = half_buffers(b, "a"), half_buffers(b, "b")
-    raw = (ha["color"][None], hb["color"][None], ha["color_var"][None], hb["color_var"][None])
-    den = pilot.square() + 0.01
-
-    def estimate(a: Tensor, bb: Tensor, va: Tensor, vb: Tensor) -> Tensor:
-        return torch.cat(
-            [
-                (cross_error(oa, ob, a, bb, va, vb) / den).mean(1, keepdim=True)
-                for oa, ob in zip(outs_a, outs_b, strict=True)
-            ],
-            1,
+        outs[h] = torch.stack([model.filter(batch, oc) for oc in candidates(model, o, s)], 1)
+        outs[f"{h}-abs"] = torch.stack(
+            [model.filter(batch, oc) for oc in candidates(model, o_full, s)], 1
         )
+        f = batch["factor"]
+        judges += [batch["irr"] * f, batch["irr_var"] * f.square()]
+    ca, cva, cb, cvb = judges
+    return outs, (ca, cb, cva, cvb)
 
-    est = estimate(ca, cb, cva, cvb)
-    index = choose(est, args.radius)
-    means = torch.stack([(oa + ob) * 0.5 for oa, ob in zip(outs_a, outs_b, strict=True)], 1)
+
+def fixed_outputs(b, sets: list[dict]) -> dict[str, Tensor]:
+    """The fixed filters' outputs ``(1, F, 3, H, W)`` on the full buffer and on each half."""
+    res = {}
+    for name, buf in (("full", b), ("a", half_buffers(b, "a")), ("b", half_buffers(b, "b"))):
+        res[name] = torch.stack(
+            [denoise(buf, "cross-bilateral", params=p, device="cpu").image[None] for p in sets], 1
+        )
+    return res
+
+
+#: Candidate sets of the variant rows: model shifts judged with the halves' own bandwidths
+#: (``M``) or with the full buffer's (``Mabs``), the fixed filters (``X``), and unions.
+SETS = ("M", "Mabs", "X", "M+X", "Mabs+X")
+#: Weighting rules of the variant rows: (name, rule, tau).
+VARIANT_RULES = (
+    ("argmin", "argmin", 0.0),
+    ("smooth", "smooth", 0.0),
+    ("soft0.3", "soft", 0.3),
+    ("soft1", "soft", 1.0),
+    ("soft-smooth0.3", "soft-smooth", 0.3),
+)
+
+
+def variant_rows(c: dict[str, Tensor], radius: int) -> dict[str, float]:
+    """relMSE of every (candidate set, rule) pair of one image from its cached candidate
+    outputs ``c`` (see :func:`image_cache`), and of each set's oracle (block argmin of the
+    true error)."""
+    ref, den = c["ref"], c["pilot"].square() + 0.01
+    judges = (c["judge_a"], c["judge_b"], c["judge_va"], c["judge_vb"])
+    parts = {
+        "M": (c["M_full"], c["M_a"], c["M_b"]),
+        "Mabs": (c["M_full"], c["M_a-abs"], c["M_b-abs"]),
+        "X": (c["X_full"], c["X_a"], c["X_b"]),
+    }
+    rows: dict[str, float] = {}
+    for name in SETS:
+        full, oa, ob = (torch.cat(t, 1) for t in zip(*(parts[p] for p in name.split("+"))))
+        est = (cross_error(oa, ob, *judges[:2], *judges[2:]) / den[:, None]).mean(2)
+        true = relmse_map(full[0], ref[None]).mean(1)[None]
+        rows[f"{name}:oracle"] = relmse(pick(full, choose(true, radius))[0], ref)
+        for label, rule, tau in VARIANT_RULES:
+            out = blend(full, weights(est, radius, rule, tau))[0]
+            rows[f"{name}:{label}"] = relmse(out, ref)
+    return rows
+
+
+def halves_rows(c: dict[str, Tensor], true: Tensor, radius: int) -> dict[str, float]:
+    """The two-buffer rows of one image (see the module docstring)."""
+    ref, den = c["ref"], c["pilot"].square() + 0.01
+    est = (
+        cross_error(c["M_a"], c["M_b"], c["judge_a"], c["judge_b"], c["judge_va"], c["judge_vb"])
+        / den[:, None]
+    ).mean(2)
+    index = choose(est, radius)
+    means = (c["M_a"] + c["M_b"]) * 0.5
     whole = int(est.mean((2, 3)).argmin(1))
     return {
-        "halves-block": relmse(pick(outs, index)[0], ref),
-        "halves-raw-block": relmse(pick(outs, choose(estimate(*raw), args.radius))[0], ref),
+        "halves-block": relmse(pick(c["M_full"], index)[0], ref),
         "halves-mean-block": relmse(pick(means, index)[0], ref),
         "halves-image": float(true[:, whole].mean()),
     }
+
+
+def image_cache(model: KalantariModel, b, ref: Tensor, grids: dict, spp: int, args) -> dict:
+    """Every candidate output, true-error and SURE map of one image that the rows need."""
+    c: dict[str, Tensor] = {"ref": ref}
+    with torch.no_grad():
+        batch = {k: v[None] for k, v in prepare_for_model(model.card, b).items()}
+        o = model.offsets(batch["features"])
+        pilot = box_mean(model.filter(batch, o), PILOT_RADIUS)
+        maps = [
+            error_maps(model, batch, oc, ref[None], pilot)
+            for oc in candidates(model, o, args.shift)
+        ]
+        c["pilot"] = pilot
+        c["M_full"] = torch.stack([m[0] for m in maps], 1)
+        c["true"] = torch.cat([m[1] for m in maps], 1)
+        c["sure"] = torch.cat([m[2] for m in maps], 1)
+        if has_halves(b):
+            outs, judges = half_outputs(model, b, args.shift, o)
+            c |= {f"M_{k}": v for k, v in outs.items()}
+            c |= dict(zip(("judge_a", "judge_b", "judge_va", "judge_vb"), judges, strict=True))
+            if spp in grids and args.variants:
+                c |= {
+                    f"X_{k}": v for k, v in fixed_outputs(b, fixed_neighbours(grids[spp])).items()
+                }
+    best = xbf_best(grids, b, spp, ref)
+    if best:
+        c["xbf-best"] = torch.tensor(best)
+    return c
+
+
+def image_rows(c: dict[str, Tensor], radius: int) -> dict[str, float]:
+    """The rows of one image from its :func:`image_cache`."""
+    outs, true, sure, ref = c["M_full"], c["true"], c["sure"], c["ref"]
+    row = {"base": float(true[:, true.shape[1] // 2].mean())}
+    for name, score in (("oracle", true), ("sure", sure)):
+        out, whole = select(outs, score, radius)
+        row[f"{name}-block"] = relmse(out[0], ref)
+        row[f"{name}-image"] = float(true[:, whole].mean())
+    if "M_a" in c:
+        row.update(halves_rows(c, true, radius))
+    if "X_full" in c:
+        row.update(variant_rows(c, radius))
+    if "xbf-best" in c:
+        row["xbf-best"] = float(c["xbf-best"])
+    return row
 
 
 def xbf_best(grids: dict[int, dict], b, spp: int, ref: Tensor) -> float | None:
@@ -215,6 +303,27 @@ def gaussian_check(model: KalantariModel, heldout: Path, image: str, s: float) -
             print(f"{f'({ds:+.1f}, {dc:+.1f})':>26}{sure.mean():>12.6f}{true.mean():>12.6f}")
 
 
+def print_summary(rows: dict[str, dict[str, float]], spps: set[int], keys: list[str], args) -> None:
+    """Per spp, one line per selection: the geometric mean over images of its relMSE over the
+    model's (``/ base``) and over the best fixed filter's (``/ xbf-best``)."""
+    print(
+        f"\nrelMSE ratios, geometric mean over images (block radius {args.radius}, "
+        f"shift {args.shift}):"
+    )
+    for s in sorted(spps):
+        sel = [r for k, r in rows.items() if k.endswith(f"@{s}")]
+        shown = [k for k in keys if sel and all(k in r for r in sel)]
+        shown += [k for k in (sel[0] if sel else {}) if ":" in k and all(k in r for r in sel)]
+        best = [r for r in sel if "xbf-best" in r]
+        print(f"{s} spp, {len(sel)} images ({len(best)} with xbf-best):")
+        print(f"{'selection':>24}{'/ base':>10}{'/ xbf-best':>12}")
+        for k in ("base", *shown):
+            line = f"{k:>24}{geometric_mean([r[k] / r['base'] for r in sel]):>10.3f}"
+            if len(best) == len(sel):
+                line += f"{geometric_mean([r[k] / r['xbf-best'] for r in sel]):>12.3f}"
+            print(line)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--heldout", type=Path, default=REPO / "data" / "generated" / "heldout")
@@ -227,6 +336,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--gaussian-check", metavar="IMAGE", default="")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--variants", action="store_true", help="the candidate-set x rule rows")
+    ap.add_argument("--cache", type=Path, default=None, help="keep each image's outputs here")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -241,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     grids = best_grid()
     rows: dict[str, dict[str, float]] = {}
     keys = ["oracle-block", "oracle-image", "sure-block", "sure-image"]
-    half_keys = ["halves-block", "halves-raw-block", "halves-mean-block", "halves-image"]
+    half_keys = ["halves-block", "halves-mean-block", "halves-image"]
     wanted = {i for i in args.images.split(",") if i}
     for e in scan_dataset(args.heldout):
         if e.spp not in spps or (wanted and e.image not in wanted):
@@ -250,63 +361,28 @@ def main(argv: list[str] | None = None) -> int:
         if not reference.is_file():
             print(f"{e.image}: no reference {reference}, skipped")
             continue
-        b, ref = load_pair(e.path, e.part, reference)
-        if "albedo" not in b:  # as bench_kalantari: the shipped model needs it
-            continue
+        key = f"{e.image}@{e.spp}"
+        cached = args.cache / f"{key}.pt" if args.cache else None
         t0 = time.perf_counter()
-        with torch.no_grad():
-            batch = {k: v[None] for k, v in prepare_for_model(model.card, b).items()}
-            o = model.offsets(batch["features"])
-            pilot = box_mean(model.filter(batch, o), PILOT_RADIUS)
-            maps = [
-                error_maps(model, batch, oc, ref[None], pilot)
-                for oc in candidates(model, o, args.shift)
-            ]
-        outs = torch.stack([m[0] for m in maps], 1)
-        true = torch.cat([m[1] for m in maps], 1)
-        sure = torch.cat([m[2] for m in maps], 1)
-        row = {"base": float(true[:, len(maps) // 2].mean())}
-        for name, score in (("oracle", true), ("sure", sure)):
-            out, whole = select(outs, score, args.radius)
-            row[f"{name}-block"] = relmse(out[0], ref)
-            row[f"{name}-image"] = float(true[:, whole].mean())
-        if has_halves(b):
-            with torch.no_grad():
-                row.update(halves_rows(model, b, outs, true, pilot, ref, args))
-        best = xbf_best(grids, b, e.spp or 0, ref)
-        if best:
-            row["xbf-best"] = best
-        rows[f"{e.image}@{e.spp}"] = row
+        if cached is not None and cached.is_file():
+            c = torch.load(cached)
+        else:
+            b, ref = load_pair(e.path, e.part, reference)
+            if "albedo" not in b:  # as bench_kalantari: the shipped model needs it
+                continue
+            c = image_cache(model, b, ref, grids, e.spp or 0, args)
+            if cached is not None:
+                cached.parent.mkdir(parents=True, exist_ok=True)
+                torch.save(c, cached)
+        row = image_rows(c, args.radius)
+        rows[key] = row
         print(
             f"{e.image:<22}{e.spp:>4} spp  base {row['base']:.5f}  "
             + "  ".join(f"{k} {row[k] / row['base']:.3f}" for k in keys + half_keys if k in row)
             + f"  ({time.perf_counter() - t0:.1f} s)",
             flush=True,
         )
-    print(
-        f"\nrelMSE ratios, geometric mean over images (block radius {args.radius}, shift {args.shift}):"
-    )
-    shown = keys + [k for k in half_keys if any(k in r for r in rows.values())]
-    print(
-        f"{'spp':>4}{'images':>8}"
-        + "".join(f"{k:>19}" for k in ("base", *shown))
-        + "   (/ base; / xbf-best)"
-    )
-    for s in sorted(spps):
-        sel = [r for k, r in rows.items() if k.endswith(f"@{s}") and all(h in r for h in shown)]
-        line = f"{s:>4}{len(sel):>8}" + f"{'1':>19}"
-        line += "".join(f"{geometric_mean([r[k] / r['base'] for r in sel]):>19.3f}" for k in shown)
-        withbest = [r for r in sel if "xbf-best" in r]
-        if withbest:
-            line += (
-                "\n"
-                + " " * 12
-                + "".join(
-                    f"{geometric_mean([r[k] / r['xbf-best'] for r in withbest]):>19.3f}"
-                    for k in ("base", *shown)
-                )
-            )
-        print(line)
+    print_summary(rows, spps, keys + half_keys, args)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

@@ -20,16 +20,27 @@ reference-free estimate)::
 is unbiased for the squared error of ``(D_k(A) + D_k(B)) / 2`` (NFOR's section 5.3). The
 variance terms are the same for every candidate, so they do not change a ranking. Divided by
 ``pilot² + 0.01`` (``pilot``: the unshifted model's output on the full buffer, box-filtered,
-the same for every candidate) it is in relMSE units; averaged over a ``(2R+1)²`` block around
-each pixel, the candidate with the lowest estimate is chosen there (:func:`choose`).
+the same for every candidate) it is in relMSE units, and averaged over a ``(2R+1)²`` block
+around each pixel.
+
+**Candidates and weights.** :func:`select_kalantari` offers the model's predicted
+log-bandwidths shifted by ``-s, 0, +s`` (spatial × colour: 9) and five fixed cross-bilateral
+filters (the training-set grid's best setting and its neighbours, :func:`fixed_candidates`),
+and blends them with :func:`weights`' ``soft-smooth`` rule: a softmax of the block
+estimates with the spread of the estimates as temperature, box-filtered over the block.
+Taking the argmin per block instead (the first version) lost most of what the choice gained:
+the estimate is noisy, neighbouring blocks flipped between candidates, and a wrong choice
+costs more than a blend. On 8 held-out renders (``docs/results/nfor.md``) the argmin among
+the shifts gave 1.02 / 0.99 of the model's relMSE at 4 / 16 spp, this default 0.91 / 0.96.
 
 **Which output.** The estimate judges filters run on *half* the samples; the user's output is
-the candidate filter run on all of them, ``D_k(A ∪ B)``. The candidates are shifts of the
-model's own prediction, and the model sees the noise level of what it filters (its features
-include the colour's relative variance and the sample count), so a shift that helps on the
-halves is taken to help on the full buffer; ``output="halves"`` gives NFOR's choice instead,
-``(D_k(A) + D_k(B)) / 2``, for which the estimate is exactly unbiased. Both are measured in
-``benchmarks/headroom_kalantari.py`` (``halves-block`` and ``halves-mean-block``).
+the candidates on all of them, ``D_k(A ∪ B)``. With ``half_bandwidths="full"`` (the default)
+each half is filtered with the bandwidths the full buffer's output will use, so the estimate
+judges the applied filter at half its samples (``"own"``: with the bandwidths the model
+predicts on the half, which carried over slightly worse). ``output="halves"`` gives NFOR's
+output instead, ``(D_k(A) + D_k(B)) / 2``, for which the estimate is exactly unbiased but
+which is much worse at 4 spp (each half has 2 samples). All are measured in
+``benchmarks/headroom_kalantari.py``.
 
 Everything here is model-agnostic: :func:`select_filtered` takes a callable that filters a
 :class:`~mcdenoise.io.buffers.FeatureBuffers` with candidate ``k``; the Kalantari methods pass
@@ -38,7 +49,8 @@ their model (:func:`select_kalantari`).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Mapping, Sequence
 
 import torch
 from torch import Tensor
@@ -48,6 +60,8 @@ from mcdenoise.filters.box import box_mean
 from mcdenoise.filters.parallel import single_threaded_ops
 from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.methods.cross_bilateral import VARIANCE_PRIOR as XBF_VARIANCE_PRIOR
+from mcdenoise.methods.cross_bilateral import denoise_xbf
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.prep.kalantari import item_features, prepare_for_model
 
@@ -59,6 +73,20 @@ SHIFT = 0.7
 PILOT_RADIUS = 3
 #: ε of relMSE.
 EPS = 0.01
+#: Default rule, temperature and half-buffer bandwidths of :func:`select_kalantari` (chosen
+#: among named variants on held-out renders, ``docs/results/nfor.md``).
+RULE = "soft-smooth"
+TAU = 0.3
+HALF_BANDWIDTHS = "full"
+#: The best two-pass fixed cross-bilateral settings of the training-set grid search, per spp
+#: (``benchmarks/results/kalantari_grid_xbf2.json``, ``best``; ``bench_kalantari.py``'s
+#: "best fixed" baseline): the fixed candidates are these and their grid neighbours
+#: (:func:`fixed_candidates`).
+FIXED_BEST: dict[int, dict[str, float | int]] = {
+    4: {"passes": 2, "sigma_spatial": 4.0, "sigma_color": 4.0, "sigma_color_refine": 0.5},
+    16: {"passes": 2, "sigma_spatial": 4.0, "sigma_color": 4.0, "sigma_color_refine": 0.25},
+    64: {"passes": 2, "sigma_spatial": 4.0, "sigma_color": 4.0, "sigma_color_refine": 0.25},
+}
 #: Guides whose halves a half buffer takes when the renderer wrote them.
 _GUIDES = ("albedo", "normal", "depth", "position")
 
@@ -107,12 +135,67 @@ def half_buffers(buffers: FeatureBuffers, half: str) -> FeatureBuffers:
     return FeatureBuffers(out, spp=half_spp, source=buffers.source)
 
 
+def fixed_neighbours(best: Mapping[str, float | int]) -> list[dict[str, float | int]]:
+    """``best`` and, for a two-pass setting, its neighbours along the spatial and the refining
+    colour bandwidth (halved and doubled): 5 fixed candidates."""
+    sets = [dict(best)]
+    if best.get("passes") == 2:
+        for key in ("sigma_spatial", "sigma_color_refine"):
+            sets += [{**best, key: best[key] / 2}, {**best, key: best[key] * 2}]
+    return sets
+
+
+def fixed_candidates(spp: int | None) -> list[dict[str, float | int]]:
+    """The fixed cross-bilateral candidates for an image of ``spp`` samples per pixel: the
+    neighbours (:func:`fixed_neighbours`) of :data:`FIXED_BEST` at the nearest grid level
+    (in log spp; 16 when the count is unknown)."""
+    level = 16 if not spp else min(FIXED_BEST, key=lambda k: abs(math.log(k / spp)))
+    return fixed_neighbours(FIXED_BEST[level])
+
+
 def choose(errors: Tensor, radius: int) -> Tensor:
     """Index ``(B, 1, H, W)`` of the candidate with the lowest block-averaged estimate.
 
     ``errors``: ``(B, K, H, W)`` per-pixel estimates of ``K`` candidates (same units).
     """
     return box_mean(errors, radius).argmin(dim=1, keepdim=True)
+
+
+#: How per-region estimates become candidate weights (:func:`weights`).
+RULES = ("argmin", "smooth", "soft", "soft-smooth")
+
+
+def weights(errors: Tensor, radius: int, rule: str = "argmin", tau: float = 0.3) -> Tensor:
+    """Per-pixel candidate weights ``(B, K, H, W)`` (summing to 1) from per-pixel estimates.
+
+    ``errors``: ``(B, K, H, W)`` per-pixel estimates of ``K`` candidates (same units), averaged
+    over the ``(2·radius + 1)²`` block around each pixel first. ``rule``:
+
+    * ``argmin``: all weight on the candidate with the lowest block estimate (:func:`choose`);
+    * ``smooth``: that one-hot choice box-filtered over the same block, so neighbouring
+      choices blend instead of meeting at a seam (NFOR smooths its selection maps so);
+    * ``soft``: ``w_k ∝ exp(-(ê_k - min ê) / (tau · (mean ê - min ê)))``: candidates whose
+      estimate is within the spread of the estimates share the weight (the spread of the
+      estimates is the scale, so the rule has no unit);
+    * ``soft-smooth``: the soft weights box-filtered over the block.
+    """
+    if rule not in RULES:
+        raise InputError(f"rule must be one of {', '.join(RULES)}, got {rule!r}")
+    e = box_mean(errors, radius)
+    if rule in ("argmin", "smooth"):
+        w = torch.zeros_like(e).scatter_(1, e.argmin(dim=1, keepdim=True), 1.0)
+    else:
+        lo = e.amin(dim=1, keepdim=True)
+        scale = tau * (e.mean(dim=1, keepdim=True) - lo) + 1e-12
+        w = torch.softmax(-(e - lo) / scale, dim=1)
+    if rule in ("smooth", "soft-smooth"):
+        w = box_mean(w, radius)
+    return w
+
+
+def blend(outputs: Tensor, w: Tensor) -> Tensor:
+    """``(B, C, H, W)``: ``outputs`` ``(B, K, C, H, W)`` weighted by ``w`` ``(B, K, H, W)``."""
+    return (outputs * w[:, :, None]).sum(dim=1)
 
 
 def pick(outputs: Tensor, index: Tensor) -> Tensor:
@@ -132,11 +215,13 @@ def select_filtered(
     *,
     base: int = 0,
     radius: int = RADIUS,
+    rule: str = "argmin",
+    tau: float = 0.3,
     output: str = "full",
     halves: tuple[FeatureBuffers, FeatureBuffers] | None = None,
     judges: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, Tensor]:
-    """Choose per region among ``n_candidates`` filters by the two-buffer estimate.
+    """Choose or weight per region among ``n_candidates`` filters by the two-buffer estimate.
 
     Args:
         buffers: an image with ``color_a``/``color_b`` (and their variances, else
@@ -146,15 +231,17 @@ def select_filtered(
         n_candidates: how many candidates.
         base: the candidate whose full-buffer output makes the relMSE pilot (the unshifted one).
         radius: block radius of the choice.
-        output: ``"full"`` (the chosen candidate on the full buffer) or ``"halves"`` (the mean
-            of the chosen candidate on each half).
+        rule, tau: how the block estimates become weights (:func:`weights`).
+        output: ``"full"`` (the weighted candidates on the full buffer) or ``"halves"`` (the
+            weighted means of the candidates on each half).
         halves: the two halves as made by :func:`half_buffers` (made here when ``None``).
         judges: ``(A, B, var_A, var_B)`` ``(1, C, H, W)`` to judge by instead of the raw halves
             (e.g. the halves after the firefly clamp the filter's preparation applies: a clamp
             changes the judge's mean a little and its variance a lot).
 
     Returns:
-        ``(image (3, H, W), index (1, H, W))``.
+        ``(image (3, H, W), weights (K, H, W))``. The full-buffer candidates run one at a
+        time after the weights are known, and only where they have weight.
     """
     if output not in ("full", "halves"):
         raise InputError(f"output must be 'full' or 'halves', got {output!r}")
@@ -164,21 +251,29 @@ def select_filtered(
         var_a, var_b = _half_var(ha, a, b), _half_var(hb, a, b)
     else:
         a, b, var_a, var_b = judges
-    full_base = filter_fn(buffers, base)
-    pilot = box_mean(full_base, PILOT_RADIUS)
-    den = pilot.square() + EPS
-    errors, halves, fulls = [], [], []
+    full_base = _finite(filter_fn(buffers, base))
+    den = box_mean(full_base, PILOT_RADIUS).square() + EPS
+    errors, means = [], []
     for k in range(n_candidates):
-        oa, ob = filter_fn(ha, k), filter_fn(hb, k)
-        e = cross_error(oa, ob, a, b, var_a, var_b) / den
-        errors.append(e.mean(dim=1, keepdim=True))
+        oa, ob = _finite(filter_fn(ha, k)), _finite(filter_fn(hb, k))
+        errors.append((cross_error(oa, ob, a, b, var_a, var_b) / den).mean(dim=1, keepdim=True))
         if output == "halves":
-            halves.append((oa + ob) * 0.5)
+            means.append((oa + ob) * 0.5)
+    w = weights(torch.cat(errors, dim=1), radius, rule, tau)
+    out = torch.zeros_like(full_base)
+    for k in range(n_candidates):
+        wk = w[:, k : k + 1]
+        if not bool(wk.max() > 0):
+            continue
+        if output == "halves":
+            out += wk * means[k]
         else:
-            fulls.append(full_base if k == base else filter_fn(buffers, k))
-    index = choose(torch.cat(errors, dim=1), radius)
-    outs = torch.stack(halves if output == "halves" else fulls, dim=1)
-    return pick(outs, index)[0], index[0]
+            out += wk * (full_base if k == base else _finite(filter_fn(buffers, k)))
+    return out[0], w[0]
+
+
+def _finite(x: Tensor) -> Tensor:
+    return torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def _clamped(batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
@@ -223,54 +318,98 @@ def shifted_offsets(model: KalantariModel, o: Tensor, s: float) -> list[Tensor]:
     return res
 
 
+def _model_offsets(
+    model: KalantariModel, item: dict[str, Tensor], spp: int | None, chunk_rows: int
+) -> Tensor:
+    """The model's log-offsets ``(1, O, H, W)`` of a prepared item, made as
+    :meth:`~mcdenoise.models.kalantari.KalantariModel.denoise_item` makes them (features
+    ``chunk_rows`` rows at a time, the MLP 32 rows at a time)."""
+    feats = item_features(item, spp, regional=model.card.regional)
+    h = item["irr"].shape[-2]
+    rows = []
+    for y in range(0, h, chunk_rows):
+        band = feats(y, min(y + chunk_rows, h))
+        rows += [model.offsets(band[..., i : i + 32, :]) for i in range(0, band.shape[-2], 32)]
+    return torch.cat(rows, dim=-2)
+
+
 def select_kalantari(
     model: KalantariModel,
     buffers: FeatureBuffers,
     *,
     shift: float = SHIFT,
     radius: int = RADIUS,
+    rule: str = RULE,
+    tau: float = TAU,
     output: str = "full",
+    half_bandwidths: str = HALF_BANDWIDTHS,
+    fixed: Sequence[Mapping[str, float | int]] | None = None,
     fireflies: str | None = None,
     variance_prior: float | None = None,
+    variance_prior_max_spp: float | None = None,
     chunk_rows: int = 256,
 ) -> Tensor:
     """``kalantari-xbf``/``-nlm`` with the per-region choice among 9 shifted bandwidth sets.
 
     The model predicts its bandwidths on each buffer (full, ``A``, ``B``) from that buffer's
     own features; the candidates shift them (:func:`shifted_offsets`) and
-    :func:`select_filtered` chooses per ``(2·radius + 1)²`` block. ``shift = 0`` is the model
-    alone (what :func:`~mcdenoise.methods.kalantari.denoise_kalantari` computes). Returns ``(3, H, W)`` float32 linear colour (finite, >= 0).
+    :func:`select_filtered` weights them per ``(2·radius + 1)²`` block. The full buffer is
+    prepared as :func:`~mcdenoise.methods.kalantari.denoise_kalantari` prepares it (so
+    ``shift = 0`` gives its output); each half as a part of the full image, with the
+    low-spp variance prior where the *full* image gets it (``variance_prior_max_spp`` halved,
+    as measured in ``benchmarks/headroom_kalantari.py``).
+
+    ``half_bandwidths``: ``"own"``: each half filtered with the bandwidths the model predicts
+    on it (shifted), ``"full"``: with the full buffer's (shifted), the bandwidths the output
+    will use, judged at half the samples. ``fixed``: settings of the fixed cross-bilateral
+    filter (:func:`~mcdenoise.methods.cross_bilateral.denoise_xbf`, with the registered
+    method's variance prior) added as candidates after the shifts (``None``:
+    :func:`fixed_candidates` for the image's spp; ``()``: none). Returns ``(3, H, W)``
+    float32 linear colour (finite, >= 0).
     """
+    if half_bandwidths not in ("own", "full"):
+        raise InputError(f"half_bandwidths must be 'own' or 'full', got {half_bandwidths!r}")
     cache: dict[int, tuple[dict[str, Tensor], list[Tensor]]] = {}
+    full_max = variance_prior_max_spp
+    if fixed is None:
+        fixed = fixed_candidates(buffers.spp)
 
     def candidates(b: FeatureBuffers) -> tuple[dict[str, Tensor], list[Tensor]]:
         key = id(b)
         if key not in cache:
+            max_spp = full_max
+            if b is not buffers:
+                max_spp = None if full_max is None else full_max / 2
             item = prepare_for_model(
-                model.card, b, features=False, fireflies=fireflies, variance_prior=variance_prior
+                model.card,
+                b,
+                features=False,
+                fireflies=fireflies,
+                variance_prior=variance_prior,
+                variance_prior_max_spp=max_spp,
             )
             del item["color"]
-            feats = item_features(item, b.spp, regional=model.card.regional)
-            h = item["irr"].shape[-2]
-            rows = []
-            for y in range(0, h, chunk_rows):
-                band = feats(y, min(y + chunk_rows, h))
-                rows += [
-                    model.offsets(band[..., i : i + 32, :]) for i in range(0, band.shape[-2], 32)
-                ]
-            o = torch.cat(rows, dim=-2)
             batch = {k: v[None] for k, v in item.items()}
-            cache[key] = (batch, shifted_offsets(model, o, shift))
+            if b is not buffers and half_bandwidths == "full":
+                cache[key] = (batch, candidates(buffers)[1])
+            else:
+                o = _model_offsets(model, item, b.spp, chunk_rows)
+                cache[key] = (batch, shifted_offsets(model, o, shift))
         return cache[key]
 
+    n_shifts = len(shifts(model.card.kind, shift))
+
     def filter_fn(b: FeatureBuffers, k: int) -> Tensor:
+        if k >= n_shifts:
+            params = {"variance_prior": XBF_VARIANCE_PRIOR, **fixed[k - n_shifts]}
+            return denoise_xbf(b, **params)[None]
         batch, offs = candidates(b)
         return model.filter(batch, offs[k])
 
-    n = len(shifts(model.card.kind, shift))
+    n = n_shifts + len(fixed)
     with torch.no_grad(), single_threaded_ops():
-        if shift == 0:  # every candidate is the model's own choice
-            out = filter_fn(buffers, n // 2)[0]
+        if shift == 0 and not fixed:  # every candidate is the model's own choice
+            out = filter_fn(buffers, n_shifts // 2)[0]
         else:
             ha, hb = half_buffers(buffers, "a"), half_buffers(buffers, "b")
             (ja, va), (jb, vb) = _clamped(candidates(ha)[0]), _clamped(candidates(hb)[0])
@@ -278,18 +417,24 @@ def select_kalantari(
                 buffers,
                 filter_fn,
                 n,
-                base=n // 2,
+                base=n_shifts // 2,
                 radius=radius,
+                rule=rule,
+                tau=tau,
                 output=output,
                 halves=(ha, hb),
                 judges=(ja, jb, va, vb),
             )
-    return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0).float()
+    return _finite(out).clamp_min(0.0).float()
 
 
 __all__ = [
+    "RULES",
     "FilterFn",
+    "blend",
     "choose",
+    "fixed_candidates",
+    "fixed_neighbours",
     "half_buffers",
     "has_halves",
     "pick",
@@ -297,4 +442,5 @@ __all__ = [
     "select_kalantari",
     "shifted_offsets",
     "shifts",
+    "weights",
 ]

@@ -2,20 +2,32 @@
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
 from torch.nn import functional as F
 
+from mcdenoise.errors import InputError
 from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io.buffers import FeatureBuffers, sanitize
 from mcdenoise.methods.kalantari import denoise_kalantari, model_for
 from mcdenoise.methods.selection import (
+    FIXED_BEST,
+    RULES,
+    blend,
+    choose,
+    fixed_candidates,
     half_buffers,
+    pick,
     select_filtered,
     select_kalantari,
+    weights,
 )
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _blur(x: torch.Tensor, r: int) -> torch.Tensor:
@@ -107,9 +119,42 @@ def test_selection_among_blurs_follows_the_image() -> None:
     def filter_fn(buf: FeatureBuffers, k: int) -> torch.Tensor:
         return _blur(buf["color"][None], radii[k])
 
-    _, index = select_filtered(fb, filter_fn, 3, base=1, radius=3)
+    _, w = select_filtered(fb, filter_fn, 3, base=1, radius=3)
+    index = w.argmax(dim=0, keepdim=True)
     assert float((index[:, 4:28, 2:12] == 2).float().mean()) > 0.9
     assert float((index[:, 4:28, 20:30] == 0).float().mean()) > 0.9
+
+
+def test_weights_sum_to_one_and_argmin_is_the_choice() -> None:
+    g = torch.Generator().manual_seed(0)
+    errors = torch.rand(1, 5, 20, 20, generator=g)
+    errors[:, 3, :, 10:] -= 0.5  # candidate 3 wins on the right
+    outputs = torch.rand(1, 5, 3, 20, 20, generator=g)
+    for rule in RULES:
+        w = weights(errors, 2, rule, 0.3)
+        assert w.shape == errors.shape and bool((w >= 0).all())
+        assert torch.allclose(w.sum(dim=1), torch.ones(1, 20, 20))
+    one_hot = weights(errors, 2, "argmin")
+    assert torch.equal(blend(outputs, one_hot), pick(outputs, choose(errors, 2)))
+    # a vanishing temperature is the argmin; a large one spreads the weight
+    assert torch.allclose(weights(errors, 2, "soft", 1e-6), one_hot, atol=1e-4)
+    assert float(weights(errors, 2, "soft", 100.0).amax()) < 0.3
+    # smoothing blends the choices only near where they change (column 10)
+    smooth = weights(errors, 2, "smooth")
+    assert bool((smooth[:, 3, :, 15:] == 1).all())
+    assert bool(((smooth[:, 3, :, 10] > 0) & (smooth[:, 3, :, 10] < 1)).any())
+    with pytest.raises(InputError, match="rule"):
+        weights(errors, 2, "vote")
+
+
+def test_the_fixed_candidates_are_the_training_grids_best_and_neighbours() -> None:
+    grid = json.loads((REPO / "benchmarks/results/kalantari_grid_xbf2.json").read_text())
+    for spp, best in grid["best"].items():
+        assert FIXED_BEST[int(spp)] == best
+    assert fixed_candidates(5)[0] == FIXED_BEST[4] and fixed_candidates(12)[0] == FIXED_BEST[16]
+    sets = fixed_candidates(4)
+    assert len(sets) == 5 and len({tuple(sorted(d.items())) for d in sets}) == 5
+    assert {d["sigma_spatial"] for d in sets} == {2.0, 4.0, 8.0}
 
 
 @pytest.fixture(scope="module")
