@@ -195,6 +195,9 @@ def test_selection_is_finite_on_the_hard_cases(xbf_model, case: str) -> None:
             .index_put_((torch.arange(3), torch.tensor(6), torch.tensor(5)), torch.tensor(2.5e7))
         )
         fb["color"] = (fb["color_a"] + fb["color_b"]) / 2
+        # as a renderer writes it: the full buffer's variance holds the firefly's too (else
+        # the fixed candidates' clamp takes it for a precise highlight and keeps it)
+        fb["color_var"] = (fb["color_a_var"] + fb["color_b_var"]) / 4
     if case == "nan features":
         n = fb["normal"].clone()
         n[:, 2:5, 2:5] = float("nan")
