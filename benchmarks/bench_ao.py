@@ -18,7 +18,9 @@ set no AO parameter was chosen on; with ``--render-only`` it stops there (the nn
 set of ``data/recipes/nnao.md``).
 
 ``--val-of RUN`` keeps only the validation images of the nnao training run ``RUN`` (its model
-card's ``val_images``: choices about nnao are made there, never on the held-out sets);
+card's ``val_images``: choices about nnao are made there, never on the held-out sets); given
+again (``--val-of A --val-of B``), the validation images of A that B did not train on (to
+compare two runs on images neither saw);
 ``--nnao-param KEY=VALUE`` (repeatable) sets nnao's parameters (e.g. ``blur=false``). The
 last lines give each method's mean SSIM and relMSE over the images.
 
@@ -144,7 +146,13 @@ def main() -> None:
     ap.add_argument(
         "--nnao-param", action="append", default=[], metavar="KEY=VALUE", help="nnao parameter"
     )
-    ap.add_argument("--val-of", metavar="RUN", help="only the validation images of nnao run RUN")
+    ap.add_argument(
+        "--val-of",
+        action="append",
+        default=[],
+        metavar="RUN",
+        help="only the validation images of nnao run RUN (again: minus that run's training images)",
+    )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     if args.speed:
@@ -165,9 +173,11 @@ def main() -> None:
         nnao_params[key] = value
     keep = None
     if args.val_of:
-        keep = set(load_nnao(args.val_of).card.training.get("val_images", []))
+        keep = set(load_nnao(args.val_of[0]).card.training.get("val_images", []))
         if not keep:
-            ap.error(f"{args.val_of}: the model card lists no validation images")
+            ap.error(f"{args.val_of[0]}: the model card lists no validation images")
+        for other in args.val_of[1:]:
+            keep -= set(load_nnao(other).card.training.get("train_images", []))
     sums: dict[str, list[float]] = {}
     print(
         f"threads {args.threads}; SSIM and relMSE against the reference; ms best of {args.repeat}"
