@@ -7,7 +7,8 @@ method uses) and the reference render the target: its grey level, the ray-traced
 noisy colour is not used, so every spp level of an image gives the same inputs up to the
 G-buffer's pixel filtering; ``-s levels=4`` (one level) saves memory and time.
 
-Like Holden et al. the loss is the mean squared error per pixel, over the non-empty pixels;
+Like Holden et al. the loss is the mean squared error per pixel, over the non-empty pixels
+(the config's ``loss`` field is not used; the model card records ``"loss_used": "mse"``);
 a step draws ``batch`` × :data:`PIXELS_PER_BATCH` pixels uniformly from all training images
 (the network is per pixel: there are no crops). Validation: the MSE and relMSE (ε = 0.01) of
 the whole validation images (split by image); ``val_loss`` is the MSE.
@@ -116,7 +117,7 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[NnaoTask, PixelS
     train_items, val_items, report = load_split(cfg, prepare, crop=1, progress=progress)
     torch.manual_seed(cfg.seed)
     model = NnaoModel(NnaoCard(samples=SAMPLES, hidden=list(cfg.hidden)))
-    description = describe_training(cfg, train_items, val_items)
+    description = {**describe_training(cfg, train_items, val_items), "loss_used": "mse"}
     return NnaoTask(model, val_items, description), PixelSampler(train_items), report
 
 

@@ -134,6 +134,7 @@ def test_trainer_learns_the_ao_of_a_real_render_and_exports_a_loadable_model(tmp
     model = NnaoModel.load(tmp_path / "run" / "model.pt")
     training = model.card.training
     assert len(training["train_images"]) == 1 and len(training["val_images"]) == 1
+    assert training["loss_used"] == "mse"
     assert training["validation"]["val_loss"] < 0.7 * before
     with torch.no_grad():
         assert float(torch.mean((model(x) - y) ** 2)) < 0.7 * before
