@@ -14,12 +14,22 @@ variance buffer as σ² and a Monte Carlo estimate of the divergence from one ra
 which needs no reference and could run at inference (Li, Wu, Chuang 2012 select filter
 scales this way), or, on renders with half buffers (``mcdenoise render --halves``), the
 **two-buffer** estimate of :mod:`mcdenoise.methods.selection` (every candidate run on each
-half and judged by the other half; what ``kalantari-xbf`` does with halves). Its rows:
-``halves-block`` (chosen per block, the chosen candidate on the full buffer: the method's
-output; the halves judged after the preparation's firefly clamp), ``halves-raw-block`` (the
-same judged by the raw halves), ``halves-mean-block`` (the mean of the chosen candidate on the
-two halves, NFOR's output, for which the estimate is unbiased) and ``halves-image`` (one
-candidate per image).
+half and judged by the other half). Its rows: ``halves-block`` (chosen per block, the chosen
+candidate on the full buffer, the halves judged after the preparation's firefly clamp),
+``halves-mean-block`` (the mean of the chosen candidate on the two halves, NFOR's output, for
+which the estimate is unbiased) and ``halves-image`` (one candidate per image).
+
+``--variants`` adds a row ``SET:RULE`` per candidate set and weighting rule
+(:func:`~mcdenoise.methods.selection.weights`: ``argmin``, ``smooth``, ``soft0.3``,
+``soft1``, ``soft-smooth0.3``) and ``SET:oracle``: sets ``M`` (the 9 shifts, each half
+filtered with the bandwidths the model predicts on it), ``Mabs`` (the 9 shifts, each half
+filtered with the full buffer's), ``X`` (5 fixed cross-bilateral filters,
+:func:`~mcdenoise.methods.selection.fixed_neighbours` of ``xbf-best``) and the unions
+``M+X``, ``Mabs+X``. ``Mabs+X:soft-smooth0.3`` is what ``kalantari-xbf`` does on an input
+with halves. ``--cache DIR`` keeps each image's candidate outputs there
+(``<image>@<spp>.pt``, a few MB) and reads them back on the next run, so the rows of a new
+rule cost seconds (the files do not record ``--shift`` or ``--model``: one folder per
+setting).
 
 It prints the geometric mean over images of each selection's relMSE divided by the model's own
 (``base``) and by the best fixed cross-bilateral filter's (``xbf-best``: the parameters of
@@ -33,6 +43,7 @@ from noise that breaks SURE's assumptions.
 
     python benchmarks/headroom_kalantari.py [--heldout DIR] [--ref-dir DIR] [--model shipped|RUN]
         [--spp 4,16] [--radius 8] [--shift 0.7] [--gaussian-check IMAGE] [--json OUT]
+        [--variants] [--cache DIR] [--images A,B,...] [--threads N]
 """
 
 from __future__ import annotations
