@@ -18,18 +18,22 @@ model that would run (:func:`model_for`) and refuses, with the reason, an input 
 (e.g. a plain Mitsuba ``aov`` file, which has no variances), so the default method passes it
 over instead of failing.
 
-**Half buffers.** On an input with both colour halves (``mcdenoise render --halves``) and at
-least :data:`SELECT_MIN_SPP` samples per pixel, ``-p select=auto`` (the default) weights per
-region among the model's bandwidths shifted by ±0.7 in log and five fixed cross-bilateral
-filters, by the two-buffer error estimate (:func:`mcdenoise.methods.selection.select_kalantari`;
-Rousselle et al. 2012, Bitterli et al. 2016). Measured with ``kalantari-xbf`` on 11 held-out
-renders (``docs/results/nfor.md``), geometric mean of relMSE over the model's alone: 0.851 at
-4 spp and 0.967 at 16 spp, at most 1.5 % worse on any image; it runs 42 filters instead of
-one: 38.8 CPU seconds against 1.3 on a 128² image (30×). ``select=off`` is the model alone,
-to the bit what an input without halves gets; ``select=on`` refuses an input without halves.
-``kalantari-nlm`` selects the same way among its own shifted ``k`` / ``k_f`` and the same
-fixed filters: 0.691 / 0.847 of its relMSE alone at 4 / 16 spp on 6 held-out images, better
-on every one.
+**Half buffers.** ``-p select=auto`` weights per region, on an input with both colour halves
+(``mcdenoise render --halves``) and at least :data:`SELECT_MIN_SPP` samples per pixel, among
+the model's bandwidths shifted by ±0.7 in log and five fixed cross-bilateral filters, by the
+two-buffer error estimate (:func:`mcdenoise.methods.selection.select_kalantari`; Rousselle
+et al. 2012, Bitterli et al. 2016); ``select=on`` does so on any input with halves and
+refuses one without. Measured on held-out renders (``docs/results/nfor.md``), geometric mean
+of relMSE over the model's alone: ``kalantari-xbf`` 0.851 at 4 spp and 0.967 at 16 spp (11
+images, at most 1.5 % worse on any), ``kalantari-nlm`` 0.691 and 0.847 (6 images, better on
+every one). It runs 42 filters instead of one: ``kalantari-xbf`` on a 128² image, one thread,
+38.8 CPU seconds against 1.3 (30×). **The default is** ``select=off``: renders carry halves
+by default, and 30× the time for 15 % (4 spp) or 3 % (16 spp) less error is a poor trade for
+every run (``make demo`` would grow by about 100 minutes). It is off the Pareto front of time
+against error too: on the held-out renders of ``docs/results/nfor.md``, ``oidn`` (6.5 s/MP)
+and ``kpcn`` (34 s/MP) have relMSE 0.0046 and 0.0062 at 4 spp, ``kalantari-xbf`` 0.0083
+(174 s/MP) and, with selection, about 0.85 of that at about 30× the time. ``select=off`` is
+the model alone, to the bit what an input without halves gets.
 """
 
 from __future__ import annotations
@@ -84,9 +88,9 @@ VARIANCE_PRIOR = 0.1
 #: ``tests/methods/test_bias.py`` allows 2 %) and raised the demo ``cornell``'s
 #: ``kalantari-xbf`` relMSE 0.0065 -> 0.0100.
 PRIOR_MAX_SPP = 2
-#: Values of ``-p select``: ``auto`` selects per region when the input has both colour halves
-#: and at least :data:`SELECT_MIN_SPP` samples per pixel, ``on`` whenever it has halves (an
-#: input without them is refused), ``off`` never.
+#: Values of ``-p select`` (default ``off``, see the module docstring): ``auto`` selects per
+#: region when the input has both colour halves and at least :data:`SELECT_MIN_SPP` samples
+#: per pixel, ``on`` whenever it has halves (an input without them is refused), ``off`` never.
 SELECT_MODES = ("auto", "on", "off")
 #: The fewest samples per pixel ``select=auto`` selects at: 4, the lowest level measured
 #: (below it each half has a single sample; see the module docstring).
@@ -147,7 +151,7 @@ def model_for(kind: str, buffers: FeatureBuffers, model: str) -> KalantariModel:
 
 def select_mode(params: Mapping[str, Any]) -> str:
     """The ``select`` parameter, checked (:data:`SELECT_MODES`)."""
-    mode = str(params.get("select", "auto")).strip().lower()
+    mode = str(params.get("select", "off")).strip().lower()
     if mode not in SELECT_MODES:
         raise InputError(f"parameter select={mode!r} is not one of {', '.join(SELECT_MODES)}")
     return mode
@@ -212,12 +216,12 @@ def _method(kind: str, what: str, priority: int) -> Method:
         needs = tuple(g for g in GUIDE_FEATURES if g != "albedo")
     return Method(
         name=f"kalantari-{kind}",
-        summary=f"{what} predicted per pixel by an MLP (Kalantari 2015); -p model=RUN, select=auto|on|off",
+        summary=f"{what} predicted per pixel by an MLP (Kalantari 2015); -p model=RUN, select=off|auto|on",
         requires=("color", *needs),
         uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS, *HALF_BUFFERS),
         defaults={
             "model": SHIPPED,
-            "select": "auto",
+            "select": "off",
             "fireflies": "clamp",
             "variance_prior": VARIANCE_PRIOR,
             "variance_prior_max_spp": PRIOR_MAX_SPP,

@@ -1,5 +1,6 @@
 """The ``select`` parameter of ``kalantari-xbf``/``-nlm`` (mcdenoise/methods/kalantari.py):
-per-region selection by the half buffers when the input has them, the model alone otherwise."""
+per-region selection by the half buffers when asked for (``auto``/``on``) and the input has
+them; the model alone by default and otherwise."""
 
 from __future__ import annotations
 
@@ -59,22 +60,23 @@ def _without_halves(fb: FeatureBuffers) -> FeatureBuffers:
 
 
 @pytest.mark.parametrize("method", ["kalantari-xbf", "kalantari-nlm"])
-def test_without_halves_or_with_select_off_the_output_is_the_models_to_the_bit(method) -> None:
+def test_by_default_without_halves_and_with_select_off_the_output_is_the_models(method) -> None:
     fb = _buffers()
     model_alone = denoise(_without_halves(fb), method, params={"select": "off"}, device="cpu")
-    auto = denoise(_without_halves(fb), method, device="cpu")  # the default: select=auto
-    off = denoise(fb, method, params={"select": "off"}, device="cpu")
-    assert torch.equal(auto.image, model_alone.image)
-    assert torch.equal(off.image, model_alone.image)
+    default = denoise(fb, method, device="cpu")  # halves present, default select=off
+    auto = denoise(_without_halves(fb), method, params={"select": "auto"}, device="cpu")
+    assert torch.equal(default.image, model_alone.image)  # to the bit
+    assert torch.equal(auto.image, model_alone.image)  # auto without halves: the model alone
 
 
-@pytest.mark.slow  # 27 filter runs: 10 s idle, 30 s on a loaded machine
-def test_select_on_with_halves_changes_the_output_and_stays_finite() -> None:
+@pytest.mark.slow  # two selections of 42 filters each: about a minute on a loaded machine
+def test_select_with_halves_changes_the_output_and_stays_finite() -> None:
     fb = _buffers(seed=1)
-    off = denoise(fb, "kalantari-xbf", params={"select": "off"}, device="cpu").image
+    off = denoise(fb, "kalantari-xbf", device="cpu").image
     on = denoise(fb, "kalantari-xbf", params={"select": "on"}, device="cpu").image
+    auto = denoise(fb, "kalantari-xbf", params={"select": "auto"}, device="cpu").image
     assert on.shape == off.shape and bool(torch.isfinite(on).all()) and bool((on >= 0).all())
-    assert not torch.equal(on, off)
+    assert not torch.equal(on, off) and torch.equal(auto, on)  # 16 spp: auto selects
 
 
 @pytest.mark.parametrize("method", [XBF, NLM])
@@ -85,5 +87,6 @@ def test_the_select_parameter_is_checked(method) -> None:
     reason = method.accepts(_without_halves(fb), {"select": "on"})
     assert reason is not None and "color_a and color_b" in reason
     assert method.accepts(_without_halves(fb), {"select": "auto"}) is None
+    assert method.defaults["select"] == "off"
     with pytest.raises(InputError, match="select"):
         denoise(fb, method.name, params={"select": "sometimes"}, device="cpu")
