@@ -30,8 +30,8 @@ and blends them with :func:`weights`' ``soft-smooth`` rule: a softmax of the blo
 estimates with the spread of the estimates as temperature, box-filtered over the block.
 Taking the argmin per block instead (the first version) lost most of what the choice gained:
 the estimate is noisy, neighbouring blocks flipped between candidates, and a wrong choice
-costs more than a blend. On 8 held-out renders (``docs/results/nfor.md``) the argmin among
-the shifts gave 1.02 / 0.99 of the model's relMSE at 4 / 16 spp, this default 0.91 / 0.96.
+costs more than a blend. On 11 held-out renders (``docs/results/nfor.md``) the argmin among
+the shifts gave 0.973 / 1.003 of the model's relMSE at 4 / 16 spp, this default 0.851 / 0.967.
 
 **Which output.** The estimate judges filters run on *half* the samples; the user's output is
 the candidates on all of them, ``D_k(A ∪ B)``. With ``half_bandwidths="full"`` (the default)
