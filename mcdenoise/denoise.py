@@ -343,7 +343,9 @@ def _run_sequence(
                 torch.cuda.synchronize(dev)
             seconds = time.perf_counter() - start - (prep_seconds[0] - prep_before)
             if index < len(shapes):  # far slower than recorded: say so, once per method
-                check_speed(m.name, seconds, shapes[index][0] * shapes[index][1], dev.type)
+                check_speed(
+                    m.speed_name(params), seconds, shapes[index][0] * shapes[index][1], dev.type
+                )
             if index >= len(shapes):
                 raise RuntimeError(f"method {m.name} returned more outputs than frames")
             out = out.detach().to("cpu", torch.float32)

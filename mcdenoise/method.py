@@ -71,6 +71,9 @@ class Method:
             beyond ``requires`` (a learned method: what its model was trained with, e.g. the
             variances of its guides); ``None`` when it can run, else the reason, one line.
             It looks at which buffers are present, not at their pixels. See :meth:`accepts`.
+        speed_key: ``speed_key(params) -> str``: the name the method's speed is recorded
+            under (:data:`mcdenoise.threads.RECORDED_SPEED`) with these parameters, when they
+            change its cost by far (``kalantari-xbf`` with ``select``); ``None``: its name.
     """
 
     name: str
@@ -85,6 +88,11 @@ class Method:
     temporal: bool = False
     run_sequence: SequenceFn | None = None
     check_input: CheckFn | None = None
+    speed_key: Callable[[Mapping[str, Any]], str] | None = None
+
+    def speed_name(self, params: Mapping[str, Any]) -> str:
+        """The key of this method's recorded speed with ``params`` (:attr:`speed_key`)."""
+        return self.name if self.speed_key is None else self.speed_key(params)
 
     def __post_init__(self) -> None:
         if self.temporal and self.run_sequence is None:

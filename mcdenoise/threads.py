@@ -71,6 +71,10 @@ RECORDED_SPEED: Mapping[str, tuple[float, float]] = {
     "cross-bilateral": (0.0275, 7.55),
     "kalantari-xbf": (0.0361, 14.4),
     "kalantari-nlm": (0.0622, 11.0),
+    # with -p select=auto|on on an input with halves: 42 filter runs (CPU time, 128² held-out
+    # cornell at 4 spp, 1 thread, load ~2, min of 2; docs/results/nfor.md)
+    "kalantari-xbf+select": (0.0361, 1806.0),
+    "kalantari-nlm+select": (0.0622, 1750.0),
     "kpcn": (0.0189, 1.48),
     "oidn": (0.121, 0.223),
     # the first frame of a sequence (spatial à-trous only); 2026-11-26, load average 0.3

@@ -188,3 +188,17 @@ def test_every_shipped_method_has_a_recorded_speed() -> None:
     from mcdenoise.registry import methods
 
     assert {m.name for m in methods()} <= set(threads.RECORDED_SPEED)
+
+
+def test_a_parameter_that_multiplies_the_cost_has_its_own_recorded_speed() -> None:
+    # kalantari-xbf with per-region selection runs 42 filters: judged against the model
+    # alone's record it would warn "overloaded" on an idle machine.
+    from mcdenoise.registry import get_method
+
+    for name in ("kalantari-xbf", "kalantari-nlm"):
+        m = get_method(name)
+        assert m.speed_name(m.resolve_params(None)) == name
+        key = m.speed_name(m.resolve_params({"select": "auto"}))
+        assert key == f"{name}+select" and key in threads.RECORDED_SPEED
+        assert threads.expected_seconds(key, 10**6) > 50 * threads.expected_seconds(name, 10**6)
+    assert get_method("nlm").speed_name({}) == "nlm"

@@ -229,6 +229,7 @@ def _method(kind: str, what: str, priority: int) -> Method:
         run=_runner(kind),
         priority=priority,
         check_input=_checker(kind),
+        speed_key=lambda p: f"kalantari-{kind}" + ("" if select_mode(p) == "off" else "+select"),
     )
 
 
