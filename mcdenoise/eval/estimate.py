@@ -558,6 +558,11 @@ def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _cell(value: Any) -> str:
+    """An HTML cell's text: floats to 4 significant digits (the JSON and CSV keep them all)."""
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
 def write_estimate_report(
     rows: Sequence[dict[str, Any]], out_dir: str | os.PathLike[str]
 ) -> dict[str, Path]:
@@ -585,7 +590,7 @@ def write_estimate_report(
             w.writerow([*(r.get(c) for c in ESTIMATE_COLUMNS), True])
     cells = "".join(
         "<tr>"
-        + "".join(f"<td>{html.escape(str(r.get(c, '')))}</td>" for c in ESTIMATE_COLUMNS)
+        + "".join(f"<td>{html.escape(_cell(r.get(c, '')))}</td>" for c in ESTIMATE_COLUMNS)
         + "</tr>"
         for r in rows
     )

@@ -92,6 +92,9 @@ def test_reference_free_report_of_several_methods(tmp_path: Path) -> None:
     assert "--estimate-error" in by[("cross-bilateral", True)]["note"]
     paths = write_estimate_report(rows, tmp_path / "report")
     assert json.loads(paths["json"].read_text())["estimated"] is True
-    assert "not measured" in paths["html"].read_text()
+    page = paths["html"].read_text()
+    assert "not measured" in page
+    value = by[("nlm", False)]["relmse_estimated"]
+    assert f"<td>{value:.4g}</td>" in page and repr(value) not in page  # readable, not 17 digits
     assert paths["csv"].read_text().splitlines()[0].endswith("estimated")
     assert format_estimates(rows).startswith("relMSE ESTIMATED without a reference")
