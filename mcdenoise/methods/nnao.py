@@ -3,8 +3,9 @@
 Like the screen-space methods of :mod:`mcdenoise.methods.ao` it ignores the noisy colour,
 reads depth, normal and the camera of an AO render (``mcdenoise denoise ao.exr --method
 nnao``) and outputs the AO as grey RGB in ``[0, 1]``, 1 on empty pixels. The network
-(:mod:`mcdenoise.models.nnao`) sees, per pixel, a Vogel spiral of sample points in the disk of
-the projected AO radius; :func:`nnao_inputs` builds those inputs from the view-space G-buffer
+(:mod:`mcdenoise.models.nnao`) sees, per pixel, a golden-angle spiral of sample points in the
+disk of the projected AO radius (its radial layout is recorded in the model card);
+:func:`nnao_inputs` builds those inputs from the view-space G-buffer
 (:func:`mcdenoise.ao.geometry.view_gbuffer`) for the method and for the trainer
 (:mod:`mcdenoise.train.nnao`), so both see exactly the same thing.
 
@@ -38,20 +39,22 @@ from mcdenoise.method import Method
 from mcdenoise.methods.ao import PRIORITY, camera_for
 from mcdenoise.methods.ao import gbuffer_for as ao_gbuffer_for
 from mcdenoise.modelfile import model_file
-from mcdenoise.models.nnao import OFFSET_CLAMP, NnaoModel, sample_pattern
+from mcdenoise.models.nnao import LEGACY_RADIAL_POWER, OFFSET_CLAMP, NnaoModel, sample_pattern
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
 
 
-def nnao_inputs(g: ViewGBuffer, radius: float, samples: int) -> Tensor:
+def nnao_inputs(
+    g: ViewGBuffer, radius: float, samples: int, radial_power: float = LEGACY_RADIAL_POWER
+) -> Tensor:
     """The network inputs ``(C, H, W)`` of every pixel of ``g`` (layout:
-    :mod:`mcdenoise.models.nnao`), 0 on empty pixels."""
+    :mod:`mcdenoise.models.nnao`; the spiral of :func:`sample_pattern`), 0 on empty pixels."""
     if not radius > 0:
         raise ValueError(f"AO radius must be > 0, got {radius}")
     u, v = g.pixel_grid()
     p = g.position
     z = p[2]
     rpix = torch.where(g.valid, g.focal * radius / z.clamp_min(1e-6), torch.zeros_like(z))
-    pattern = sample_pattern(samples).to(p.device)
+    pattern = sample_pattern(samples, radial_power).to(p.device)
     feats = []
     for k in range(samples):
         q, n, ok = g.fetch_with_normal(u + pattern[k, 0] * rpix, v + pattern[k, 1] * rpix)
@@ -90,7 +93,7 @@ def load_nnao(model: str) -> NnaoModel:
 
 def nnao(model: NnaoModel, g: ViewGBuffer, radius: float, blur: bool = True) -> Tensor:
     """AO ``(H, W)`` of ``g`` by ``model`` (then the depth-aware blur); 1 on empty pixels."""
-    x = nnao_inputs(g, radius, model.card.samples)
+    x = nnao_inputs(g, radius, model.card.samples, model.card.radial_power)
     dev = next(model.parameters()).device
     with torch.no_grad():
         ao = model(x.to(dev).permute(1, 2, 0)).to(x.device)

@@ -35,6 +35,8 @@ from mcdenoise.train.loop import TrainResult, run_training
 PIXELS_PER_BATCH = 1024
 #: Sample points of the trained model.
 SAMPLES = 16
+#: The spiral's radial exponent of the trained model (recorded in its card).
+RADIAL_POWER = 1.0
 
 
 def prepare(buffers: FeatureBuffers, ref: Tensor) -> dict[str, Tensor]:
@@ -45,7 +47,7 @@ def prepare(buffers: FeatureBuffers, ref: Tensor) -> dict[str, Tensor]:
     """
     g, radius = gbuffer_for(buffers, {"radius": None, "fov": None, "fov_axis": ""})
     return {
-        "inputs": nnao_inputs(g, radius, SAMPLES),
+        "inputs": nnao_inputs(g, radius, SAMPLES, RADIAL_POWER),
         "valid": g.valid[None].float(),
         REFERENCE: ref.float().mean(0, keepdim=True),
     }
@@ -116,7 +118,7 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[NnaoTask, PixelS
         raise InputError("no training data: pass --data DIR (AO renders of mcdenoise render)")
     train_items, val_items, report = load_split(cfg, prepare, crop=1, progress=progress)
     torch.manual_seed(cfg.seed)
-    model = NnaoModel(NnaoCard(samples=SAMPLES, hidden=list(cfg.hidden)))
+    model = NnaoModel(NnaoCard(samples=SAMPLES, radial_power=RADIAL_POWER, hidden=list(cfg.hidden)))
     description = {**describe_training(cfg, train_items, val_items), "loss_used": "mse"}
     return NnaoTask(model, val_items, description), PixelSampler(train_items), report
 

@@ -1,14 +1,15 @@
 """nnao (Holden et al. 2016): the model's range, the shipped weights on closed forms, the method
 on a real AO render.
 
-Measured with the shipped weights (1 thread; 256 random AO scenes of seed 4000, hidden 64, 32:
-``data/recipes/nnao.md``): a flat floor 1 unit below the camera (radius 0.5; closed form: AO
-1) gives mean / minimum 0.987 / 0.951 at pitch 30° and 0.925 / 0.796 at pitch 60° (with the
-default blur) -- a bias of the learned estimator (the sigmoid never reaches 1; the lowest
-values are at the image border, where samples fall off screen). ``ao_contact_48x36``: SSIM
-0.915, relMSE 0.0144 (ssao 0.848 / 0.0396, gtao 0.869 / 0.0204 on the same file,
-``test_ao_render.py``). The weights of 16 scenes before them gave 0.966 / 0.873, 0.885 /
-0.748 and 0.873 / 0.0139.
+Measured with the shipped weights (1 thread; 256 random AO scenes of seed 4000, hidden 64, 32,
+SAO's spiral ``radial_power`` 1: ``data/recipes/nnao.md``): a flat floor 1 unit below the
+camera (radius 0.5; closed form: AO 1) gives mean / minimum 0.993 / 0.977 at pitch 30° and
+0.905 / 0.791 at pitch 60° (with the default blur) -- a bias of the learned estimator (the
+sigmoid never reaches 1; the lowest values are at the image border, where samples fall off
+screen). ``ao_contact_48x36``: SSIM 0.920, relMSE 0.0139 (ssao 0.848 / 0.0396, gtao 0.869 /
+0.0204 on the same file, ``test_ao_render.py``). The weights before them (same data, Vogel's
+sqrt spiral) gave 0.987 / 0.951, 0.925 / 0.796 and 0.915 / 0.0144; those of 16 scenes 0.966
+/ 0.873, 0.885 / 0.748 and 0.873 / 0.0139.
 """
 
 from __future__ import annotations
@@ -21,10 +22,17 @@ import torch
 from ao_gbuffers import planes_gbuffer
 
 from mcdenoise.ao.geometry import view_gbuffer
+from mcdenoise.errors import InputError
 from mcdenoise.eval.metrics import relmse, ssim
 from mcdenoise.io import load_buffers
 from mcdenoise.methods.nnao import METHOD, load_nnao, nnao, nnao_inputs
-from mcdenoise.models.nnao import NnaoCard, NnaoModel, input_channels
+from mcdenoise.models.nnao import (
+    LEGACY_RADIAL_POWER,
+    NnaoCard,
+    NnaoModel,
+    input_channels,
+    sample_pattern,
+)
 from mcdenoise.models.weights import shipped_model_path
 
 HERE = Path(__file__).resolve().parent
@@ -76,6 +84,38 @@ def test_model_file_round_trips(tmp_path):
     assert back.card.hidden == [8, 4]
 
 
+def test_spiral_radial_power_sets_the_radii_and_reaches_the_inputs():
+    r_vogel = sample_pattern(16).norm(dim=1)
+    r_sao = sample_pattern(16, 1.0).norm(dim=1)
+    k = torch.arange(16) + 0.5
+    assert torch.allclose(r_vogel, (k / 16).sqrt()) and torch.allclose(r_sao, k / 16)
+    assert (r_sao <= r_vogel + 1e-7).all() and r_sao[0] < 0.5 * r_vogel[0]
+    g = _discontinuous_gbuffer()
+    assert not torch.equal(nnao_inputs(g, RADIUS, 8, 0.5), nnao_inputs(g, RADIUS, 8, 1.0))
+    with pytest.raises(InputError, match="radial_power"):
+        NnaoModel(NnaoCard(samples=4, radial_power=0.0, hidden=[4]))
+
+
+def test_a_card_without_radial_power_loads_with_the_layout_it_was_trained_with(tmp_path):
+    # Model files written before the card had ``radial_power`` (the first shipped weights,
+    # a user's own runs) were trained on Vogel's sqrt spiral: they must keep getting it.
+    model = NnaoModel(NnaoCard(samples=4, radial_power=1.0, hidden=[8]))
+    model.save(tmp_path / "new.pt")
+    assert NnaoModel.load(tmp_path / "new.pt").card.radial_power == 1.0
+    state = torch.load(tmp_path / "new.pt", weights_only=True)
+    del state["card"]["radial_power"]
+    torch.save(state, tmp_path / "old.pt")
+    old = NnaoModel.load(tmp_path / "old.pt")
+    assert old.card.radial_power == LEGACY_RADIAL_POWER == 0.5
+    g = _discontinuous_gbuffer()
+    with torch.no_grad():
+        want = old(nnao_inputs(g, RADIUS, 4, 0.5).permute(1, 2, 0))
+        other = old(nnao_inputs(g, RADIUS, 4, 1.0).permute(1, 2, 0))
+    got = nnao(old, g, RADIUS, blur=False)
+    assert torch.allclose(got[g.valid], want[g.valid])
+    assert not torch.allclose(got[g.valid], other[g.valid])
+
+
 needs_weights = pytest.mark.skipif(
     not shipped_model_path("nnao").is_file(), reason="no shipped nnao weights"
 )
@@ -106,7 +146,7 @@ def test_trainer_learns_the_ao_of_a_real_render_and_exports_a_loadable_model(tmp
     # measured 0.0179 -> 0.0080; required: below 0.7x.
     import shutil
 
-    from mcdenoise.train.nnao import SAMPLES, prepare
+    from mcdenoise.train.nnao import RADIAL_POWER, SAMPLES, prepare
     from mcdenoise.train.trainers import train_model
 
     data = tmp_path / "data"
@@ -115,7 +155,7 @@ def test_trainer_learns_the_ao_of_a_real_render_and_exports_a_loadable_model(tmp
         shutil.copy(HERE / "ao_contact_48x36.exr", data / f"{name}.exr")
         shutil.copy(HERE / "ao_contact_48x36_ref.exr", data / "ref" / f"{name}.exr")
     torch.manual_seed(0)
-    untrained = NnaoModel(NnaoCard(samples=SAMPLES, hidden=[8]))
+    untrained = NnaoModel(NnaoCard(samples=SAMPLES, radial_power=RADIAL_POWER, hidden=[8]))
     fb = load_buffers(data / "a.exr")
     t = prepare(fb, load_buffers(data / "ref" / "a.exr")["color"])
     m = t["valid"][0] > 0
@@ -135,6 +175,7 @@ def test_trainer_learns_the_ao_of_a_real_render_and_exports_a_loadable_model(tmp
     training = model.card.training
     assert len(training["train_images"]) == 1 and len(training["val_images"]) == 1
     assert training["loss_used"] == "mse"
+    assert model.card.radial_power == RADIAL_POWER  # the layout it was trained on
     assert training["validation"]["val_loss"] < 0.7 * before
     with torch.no_grad():
         assert float(torch.mean((model(x) - y) ** 2)) < 0.7 * before
