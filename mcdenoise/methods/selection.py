@@ -321,16 +321,11 @@ def shifted_offsets(model: KalantariModel, o: Tensor, s: float) -> list[Tensor]:
 def _model_offsets(
     model: KalantariModel, item: dict[str, Tensor], spp: int | None, chunk_rows: int
 ) -> Tensor:
-    """The model's log-offsets ``(1, O, H, W)`` of a prepared item, made as
-    :meth:`~mcdenoise.models.kalantari.KalantariModel.denoise_item` makes them (features
-    ``chunk_rows`` rows at a time, the MLP 32 rows at a time)."""
+    """The model's log-offsets ``(1, O, H, W)`` of a prepared item, as
+    :meth:`~mcdenoise.models.kalantari.KalantariModel.denoise_item` makes them
+    (:meth:`~mcdenoise.models.kalantari.KalantariModel.banded_offsets`)."""
     feats = item_features(item, spp, regional=model.card.regional)
-    h = item["irr"].shape[-2]
-    rows = []
-    for y in range(0, h, chunk_rows):
-        band = feats(y, min(y + chunk_rows, h))
-        rows += [model.offsets(band[..., i : i + 32, :]) for i in range(0, band.shape[-2], 32)]
-    return torch.cat(rows, dim=-2)
+    return model.banded_offsets(feats, item["irr"].shape[-2], chunk_rows)
 
 
 def select_kalantari(

@@ -272,6 +272,20 @@ class KalantariModel(nn.Module):
         return self.filter(batch, offsets)
 
     @torch.no_grad()
+    def banded_offsets(
+        self, features: Callable[[int, int], Tensor], height: int, chunk_rows: int = 256
+    ) -> Tensor:
+        """The log-offsets ``(1, O, H, W)`` of an image of ``height`` rows whose raw features
+        ``features(y0, y1)`` gives ``chunk_rows`` rows at a time; the MLP's temporaries
+        (normalised copies, hidden layers) exist for 32 rows at a time. The result does not
+        depend on either."""
+        rows = []
+        for y in range(0, height, chunk_rows):
+            band = features(y, min(y + chunk_rows, height))
+            rows += [self.offsets(band[..., i : i + 32, :]) for i in range(0, band.shape[-2], 32)]
+            del band
+        return torch.cat(rows, dim=-2)
+
     def denoise_item(
         self,
         item: Mapping[str, Tensor],
@@ -298,15 +312,7 @@ class KalantariModel(nn.Module):
             def features(y0: int, y1: int) -> Tensor:
                 return feats[..., y0:y1, :]
 
-        rows = []
-        for y in range(0, h, chunk_rows):
-            band = features(y, min(y + chunk_rows, h))
-            # the MLP's temporaries (normalised copies, hidden layers) 32 rows at a time
-            rows += [self.offsets(band[..., i : i + 32, :]) for i in range(0, band.shape[-2], 32)]
-            del band
-        offsets = torch.cat(rows, dim=-2)
-        del rows
-        out = self.filter(batch, offsets)
+        out = self.filter(batch, self.banded_offsets(features, h, chunk_rows))
         return torch.nan_to_num(out[0], nan=0.0, posinf=0.0, neginf=0.0).float()
 
     # --- files ---------------------------------------------------------------------------
