@@ -306,16 +306,6 @@ def worst_images(runs: Runs, items: Sequence[Any], spps: Sequence[int], out: dic
         print(f"  {s:>3} spp: " + "; ".join(cells))
 
 
-def tiled(b: FeatureBuffers, height: int, width: int) -> FeatureBuffers:
-    """``b`` repeated to ``height`` × ``width`` (every buffer, cropped at the far edges)."""
-    ry, rx = -(-height // b.height), -(-width // b.width)
-    return FeatureBuffers(
-        {k: v.repeat(1, ry, rx)[:, :height, :width].contiguous() for k, v in b.buffers.items()},
-        spp=b.spp,
-        profile=b.profile,
-    )
-
-
 def timed(b: FeatureBuffers, method: str, params: Mapping[str, Any], repeats: int) -> float:
     """Median method seconds of ``repeats`` runs after one warm-up."""
     denoise(b, method, params=params, device="cpu")
@@ -695,7 +685,7 @@ def print_ablations(
 
 def speed(args, sample: FeatureBuffers, main_model: Model, ablations, out: dict, check) -> None:
     w, h = args.speed_size
-    big = tiled(sample, h, w)
+    big = sample.tiled(h, w)
     mp = w * h / 1e6
     print(
         f"\nspeed: {w}x{h} tiled from a held-out image, {args.threads} thread(s), median of "
@@ -726,7 +716,7 @@ def speed(args, sample: FeatureBuffers, main_model: Model, ablations, out: dict,
 def memory(args, sample: FeatureBuffers, main_model: Model, tmp: Path, out: dict, check) -> None:
     w, h = args.memory_size
     src = tmp / f"frame_{w}x{h}.exr"
-    save_buffers(src, tiled(sample, h, w))
+    save_buffers(src, sample.tiled(h, w))
     exe = Path(sys.executable).with_name("mcdenoise")
     base = [str(exe)] if exe.is_file() else [shutil.which("mcdenoise") or "mcdenoise"]
     env = dict(os.environ)

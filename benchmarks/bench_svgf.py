@@ -95,19 +95,10 @@ def quality(seq: Path, part: str, methods: list[str]) -> None:
         print(f"  {name:8s} " + " ".join(f"{v:.4f}" for v in per))
 
 
-def _tiled(fb: FeatureBuffers, size: int) -> FeatureBuffers:
-    h, w = fb.shape
-    ry, rx = -(-size // h), -(-size // w)
-    out = FeatureBuffers()
-    for name in fb.names():
-        out[name] = fb[name].repeat(1, ry, rx)[:, :size, :size].contiguous()
-    return out
-
-
 def timing(seq: Path, part: str, size: int, n_frames: int, threads: int) -> None:
     apply_threads(threads)
     frames, _ = _frames(seq, part)
-    big = [_tiled(frames[i % len(frames)], size) for i in range(n_frames)]
+    big = [frames[i % len(frames)].tiled(size, size) for i in range(n_frames)]
     load = os.getloadavg()[0]
     secs, cpu = [], []
     results = denoise_sequence(iter(big), "svgf")

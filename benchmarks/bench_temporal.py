@@ -110,18 +110,9 @@ def _gm(values: list[float]) -> float:
     return math.exp(sum(math.log(x) for x in v) / len(v)) if v else math.nan
 
 
-def _tiled(fb: FeatureBuffers, size: int) -> FeatureBuffers:
-    h, w = fb.shape
-    ry, rx = -(-size // h), -(-size // w)
-    out = FeatureBuffers()
-    for name in fb.names():
-        out[name] = fb[name].repeat(1, ry, rx)[:, :size, :size].contiguous()
-    return out
-
-
 def timing(seq: Path, part: str, size: int) -> None:
     frames, _ = _load(seq, part)
-    big = [_tiled(frames[i % len(frames)], size) for i in range(7)]
+    big = [frames[i % len(frames)].tiled(size, size) for i in range(7)]
     load = os.getloadavg()[0]
     secs = [r.seconds for r in denoise_sequence(iter(big), "svgf")]
     steady = statistics.median(secs[4:])

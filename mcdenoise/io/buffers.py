@@ -305,6 +305,18 @@ class FeatureBuffers:
             out.data_window = (dx, dy, dx + cw - 1, dy + ch - 1)
         return out
 
+    def tiled(self, height: int, width: int) -> FeatureBuffers:
+        """Every buffer repeated to ``height`` × ``width`` (cropped at the far edges, contiguous
+        copies): a large frame of the same content, for timing and memory benchmarks.
+        Metadata is kept, the data and display windows are not (the image is a new size)."""
+        ry, rx = -(-height // self.height), -(-width // self.width)
+        out = self.to()
+        out.buffers = {
+            k: v.repeat(1, ry, rx)[:, :height, :width].contiguous() for k, v in self.buffers.items()
+        }
+        out.data_window = out.display_window = None
+        return out
+
     def nonfinite_counts(self) -> dict[str, dict[str, int]]:
         """Per buffer: counts of NaN, +/-Inf and negative values (for reports and ``info``)."""
         out: dict[str, dict[str, int]] = {}

@@ -117,6 +117,19 @@ def test_crop_moves_the_data_window(tmp_path, rng):
         save_buffers(tmp_path / "s.exr", stale)
 
 
+def test_tiled_repeats_every_buffer_keeps_metadata_and_drops_the_windows(tmp_path, rng):
+    fb = full_buffers(rng, h=10, w=12)
+    fb.spp = 4
+    fb.data_window = (100, 200, 111, 209)
+    big = fb.tiled(25, 30)
+    assert big.shape == (25, 30) and big.spp == 4 and big.names() == fb.names()
+    assert big.data_window is None and big.display_window is None
+    assert torch.equal(big["color"][:, 10:20, 12:24], fb["color"])
+    assert torch.equal(big["depth"][:, 20:25, 24:30], fb["depth"][:, :5, :6])
+    save_buffers(tmp_path / "t.exr", big)  # writable: no stale window
+    assert load_buffers(tmp_path / "t.exr").shape == (25, 30)
+
+
 def test_multipart_channels_by_name_and_part_selection(tmp_path, rng, write_multipart):
     r = {c: rng.random((4, 6)).astype(np.float32) for c in "RGB"}
     a = {f"albedo.{c}": rng.random((4, 6)).astype(np.float32) for c in "RGB"}
