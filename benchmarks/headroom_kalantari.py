@@ -62,13 +62,13 @@ from mcdenoise.eval.metrics import relmse
 from mcdenoise.filters.box import box_mean
 from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io import load_buffers
+from mcdenoise.io.buffers import has_halves
 from mcdenoise.losses import relative_squared_error, relmse_map
 from mcdenoise.methods.selection import (
     blend,
     choose,
     fixed_neighbours,
     half_buffers,
-    has_halves,
     pick,
     shifted_offsets,
     weights,

@@ -105,14 +105,7 @@ from mcdenoise.filters.two_buffer import (
     half_error,
     squared_error,
 )
-from mcdenoise.io.buffers import (
-    HALF_NAMES,
-    HALF_SUFFIXES,
-    VAR_SUFFIX,
-    FeatureBuffers,
-    check_halves,
-    has_halves,
-)
+from mcdenoise.io.buffers import FeatureBuffers, check_halves, half_inputs, has_halves
 from mcdenoise.losses import RELMSE_EPS
 
 __all__ = [
@@ -139,18 +132,10 @@ Denoiser = Callable[[FeatureBuffers], Tensor]
 
 
 def split_halves(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffers]:
-    """The two half-sample inputs of ``buffers``: in each, ``color`` is one half
-    (``color_a`` or ``color_b``), ``color_var`` its variance, each halved feature its half
-    (``albedo_a``...), the other features as they are, and ``spp`` half the count; no half
-    buffers remain in them (so a method that uses halves does not recurse on a half).
-
-    Features that are not halved are shared by both halves. They hold the samples of both
-    halves, so a filter guided by them sees a little of the other half's noise; the renderer
-    halves the features that are noisy (depth of field) for this reason
-    (:mod:`mcdenoise.render.passes`).
+    """The two half-sample inputs of ``buffers`` (:func:`mcdenoise.io.buffers.half_inputs`).
 
     Raises:
-        InputError: no ``color_a``/``color_b`` (or only one of them).
+        InputError: no ``color_a``/``color_b`` (or only one of them), naming how to get them.
     """
     check_halves(buffers)
     if not has_halves(buffers):
@@ -161,26 +146,7 @@ def split_halves(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffer
             "render with halves (mcdenoise render --halves)"
             + (odd if buffers.spp is not None and buffers.spp % 2 else "")
         )
-    base = {n: t for n, t in buffers.buffers.items() if n not in _ALL_HALVES}
-    out = []
-    for suffix in HALF_SUFFIXES:
-        half = buffers.to()
-        half.buffers = dict(base)
-        for n in HALF_NAMES:
-            if n.endswith(suffix) and n in buffers:
-                feat = n[: -len(suffix)]
-                half.buffers[feat] = buffers[n]
-                var = buffers.get(n + VAR_SUFFIX)
-                if var is not None:
-                    half.buffers[feat + VAR_SUFFIX] = var
-                elif feat + VAR_SUFFIX in half.buffers:  # no half variance: twice the full one
-                    half.buffers[feat + VAR_SUFFIX] = 2 * half.buffers[feat + VAR_SUFFIX]
-        half.spp = max(1, buffers.spp // 2) if buffers.spp else None
-        out.append(half)
-    return out[0], out[1]
-
-
-_ALL_HALVES = frozenset(HALF_NAMES) | {n + VAR_SUFFIX for n in HALF_NAMES}
+    return half_inputs(buffers)
 
 
 def relative(squared_error: Tensor, judged: Tensor, eps: float = RELMSE_EPS) -> Tensor:

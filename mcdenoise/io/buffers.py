@@ -365,6 +365,49 @@ def has_halves(buffers: FeatureBuffers, name: str = "color") -> bool:
     return all(name + h in buffers for h in HALF_SUFFIXES)
 
 
+def half_inputs(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffers]:
+    """The two half-sample inputs of ``buffers``: in each, ``color`` is one half
+    (``color_a`` or ``color_b``), ``color_var`` its variance (else twice the full one, the
+    variance of a mean of half the samples), each halved feature its half (``albedo_a``...,
+    likewise), the other buffers as they are, metadata kept and ``spp`` half the count; no half
+    buffers remain in them (so a method that uses halves does not recurse on a half).
+
+    Features that are not halved are shared by both halves. They hold the samples of both
+    halves, so a filter guided by them sees a little of the other half's noise; the renderer
+    halves the features that are noisy (depth of field) for this reason
+    (:mod:`mcdenoise.render.passes`). Used by the reference-free estimate
+    (:mod:`mcdenoise.eval.estimate`) and the per-region selection
+    (:mod:`mcdenoise.methods.selection`), which say what a missing half means for them.
+
+    Raises:
+        InputError: halves of another size, one half only (:func:`check_halves`), or none.
+    """
+    check_halves(buffers)
+    if not has_halves(buffers):
+        where = f"{buffers.source}: " if buffers.source else ""
+        raise InputError(f"{where}no half buffers (color_a, color_b)")
+    base = {n: t for n, t in buffers.buffers.items() if n not in _ALL_HALVES}
+    out = []
+    for suffix in HALF_SUFFIXES:
+        half = buffers.to()
+        half.buffers = dict(base)
+        for n in HALF_NAMES:
+            if n.endswith(suffix) and n in buffers:
+                feat = n[: -len(suffix)]
+                half.buffers[feat] = buffers[n]
+                var = buffers.get(n + VAR_SUFFIX)
+                if var is not None:
+                    half.buffers[feat + VAR_SUFFIX] = var
+                elif feat + VAR_SUFFIX in half.buffers:  # no half variance: twice the full one
+                    half.buffers[feat + VAR_SUFFIX] = 2 * half.buffers[feat + VAR_SUFFIX]
+        half.spp = max(1, buffers.spp // 2) if buffers.spp else None
+        out.append(half)
+    return out[0], out[1]
+
+
+_ALL_HALVES = frozenset(HALF_NAMES) | {n + VAR_SUFFIX for n in HALF_NAMES}
+
+
 #: Finite values beyond this magnitude are treated like +/-Inf by :func:`sanitize`: no render
 #: produces them (they come from damaged pixel data) and the filters' float32 arithmetic
 #: overflows on them (squares, sums of squares) into NaN/Inf mid-method.

@@ -59,7 +59,7 @@ from mcdenoise.errors import InputError
 from mcdenoise.filters.box import box_mean
 from mcdenoise.filters.parallel import single_threaded_ops
 from mcdenoise.filters.two_buffer import cross_error
-from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.io.buffers import FeatureBuffers, half_inputs, has_halves
 from mcdenoise.methods.cross_bilateral import VARIANCE_PRIOR as XBF_VARIANCE_PRIOR
 from mcdenoise.methods.cross_bilateral import denoise_xbf
 from mcdenoise.models.kalantari import KalantariModel
@@ -87,17 +87,11 @@ FIXED_BEST: dict[int, dict[str, float | int]] = {
     16: {"passes": 2, "sigma_spatial": 4.0, "sigma_color": 4.0, "sigma_color_refine": 0.25},
     64: {"passes": 2, "sigma_spatial": 4.0, "sigma_color": 4.0, "sigma_color_refine": 0.25},
 }
-#: Guides whose halves a half buffer takes when the renderer wrote them.
-_GUIDES = ("albedo", "normal", "depth", "position")
-
-
-def has_halves(buffers: FeatureBuffers) -> bool:
-    """True when ``buffers`` hold both colour halves."""
-    return "color_a" in buffers and "color_b" in buffers
 
 
 def half_buffers(buffers: FeatureBuffers, half: str) -> FeatureBuffers:
-    """The buffers of half ``"a"`` or ``"b"`` as an image of its own (``spp / 2`` samples).
+    """The buffers of half ``"a"`` or ``"b"`` as an image of its own (``spp / 2`` samples;
+    :func:`mcdenoise.io.buffers.half_inputs`).
 
     Colour: ``color_<h>`` with ``color_<h>_var`` (else twice ``color_var``, the variance of a
     mean of half the samples). Guides: their halves where the renderer wrote them (depth of
@@ -107,32 +101,7 @@ def half_buffers(buffers: FeatureBuffers, half: str) -> FeatureBuffers:
         raise InputError(f"half must be 'a' or 'b', got {half!r}")
     if not has_halves(buffers):
         raise InputError("half buffers color_a and color_b are needed")
-    h = f"_{half}"
-    out: dict[str, Tensor] = {"color": buffers[f"color{h}"]}
-
-    def var(name: str) -> Tensor | None:
-        v = buffers.get(f"{name}{h}_var")
-        if v is None and f"{name}_var" in buffers:
-            v = buffers[f"{name}_var"] * 2.0
-        return v
-
-    v = var("color")
-    if v is not None:
-        out["color_var"] = v
-    for g in _GUIDES:
-        if f"{g}{h}" in buffers:
-            out[g] = buffers[f"{g}{h}"]
-            gv = var(g)
-        elif g in buffers:
-            out[g] = buffers[g]
-            gv = buffers.get(f"{g}_var")
-        else:
-            continue
-        if gv is not None:
-            out[f"{g}_var"] = gv
-    spp = buffers.spp
-    half_spp = None if spp is None else max(1, (spp + (1 if half == "a" else 0)) // 2)
-    return FeatureBuffers(out, spp=half_spp, source=buffers.source)
+    return half_inputs(buffers)[0 if half == "a" else 1]
 
 
 def fixed_neighbours(best: Mapping[str, float | int]) -> list[dict[str, float | int]]:
@@ -431,7 +400,6 @@ __all__ = [
     "fixed_candidates",
     "fixed_neighbours",
     "half_buffers",
-    "has_halves",
     "pick",
     "select_filtered",
     "select_kalantari",
