@@ -4,7 +4,8 @@ The default for an input (:func:`choose_method`, :func:`best_method`) is the fir
 best first (priority, then name), that is available here and accepts the input
 (:meth:`Method.accepts <mcdenoise.method.Method.accepts>`: its required buffers are present and
 its own check, e.g. what a learned model was trained with, passes); the methods passed over
-are kept with the reason, which ``mcdenoise denoise --verbose`` prints.
+are kept with the reason, which ``mcdenoise denoise --verbose`` prints. A plugin's method is
+never the default, whatever its priority: it runs when a user names it (or ``all``).
 
 What a method is (per-frame or temporal) is :class:`~mcdenoise.method.Method`, re-exported
 here. The built-in methods are loaded explicitly on first use of the table
@@ -23,14 +24,24 @@ denoiser"):
   the installed packages is loaded with the built-ins (:func:`_load_plugins`). It gives a
   :class:`Method`, or a callable returning one or a list of them. A plugin that fails to
   load, gives something else, or names a built-in method is listed as an unavailable method
-  with the reason, never an error of ``mcdenoise methods``; a built-in keeps its name.
+  with the reason, never an error of ``mcdenoise methods``; a built-in keeps its name (also
+  against a plugin that calls :func:`register` while it loads). Plugin methods are in the
+  table (``mcdenoise methods``, ``--method NAME``, ``all``) but never the default
+  (:func:`choose_method`): installing a package must not silently change what a plain
+  ``mcdenoise denoise`` runs.
 * **commands**: ``get_method("cmd:PROGRAM ARGS {input} {output}")`` builds the method of an
-  external command (:mod:`mcdenoise.methods.external`); it is not in the table (never a
-  default, never part of ``all``) but is found again by its name (``cmd-PROGRAM-xxxxxx``).
+  external command (:mod:`mcdenoise.methods.external`; building it runs nothing); it is not
+  in the table (never a default, never part of ``all``) but is found again by its name
+  (``cmd-PROGRAM-xxxxxx``).
+
+A method name read from a file someone else may have written (an output's
+``mcdenoise:method`` header) is looked up with :func:`header_method`: only the table, never a
+command, so a file cannot make mcdenoise run a program.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 from importlib import metadata
@@ -61,6 +72,9 @@ __all__ = [
     "choose_method",
     "dataclass_defaults",
     "get_method",
+    "header_method",
+    "is_command",
+    "is_plugin",
     "methods",
     "params_from_strings",
     "register",
@@ -70,6 +84,10 @@ _REGISTRY: dict[str, Method] = {}
 _ALIASES: dict[str, str] = {}
 #: ``cmd:`` methods built so far: their name and their ``cmd:...`` text -> the method.
 _COMMANDS: dict[str, Method] = {}
+#: Names of the table's methods that came from plugins (never the default).
+_PLUGINS: set[str] = set()
+#: A command method's generated name (:func:`mcdenoise.methods.external.method_name`).
+_COMMAND_NAME = re.compile(r"^cmd-[A-Za-z0-9_.-]+-[0-9a-f]{6}$")
 #: The entry-point group a package declares its methods in.
 PLUGIN_GROUP = "mcdenoise.methods"
 #: "no" (built-ins not loaded yet), "loading" (their modules are being imported), "done".
@@ -96,6 +114,7 @@ def _ensure_builtins() -> None:
         reserved = {m.name for m, _ in builtin} | {a for _, al in builtin for a in al}
         for method in _load_plugins(reserved):
             _REGISTRY.setdefault(method.name, method)
+            _PLUGINS.add(method.name)
     except BaseException:
         _builtins["state"] = "no"  # the next call raises the same error again
         raise
@@ -164,8 +183,18 @@ def _broken(name: str, where: str, reason: str) -> Method:
 
 
 def register(method: Method, *, aliases: Iterable[str] = ()) -> Method:
-    """Add ``method`` to the registry (replacing one of the same name, built-ins included)."""
+    """Add ``method`` to the registry (replacing one of the same name, built-ins included).
+
+    Called by a plugin while the plugins load (its module's import, its entry point's
+    callable), the method is a plugin's: never the default, and it may not take a name of
+    the table (``InputError``, which makes that plugin an unavailable entry).
+    """
     _ensure_builtins()
+    if _builtins["state"] == "loading":
+        taken = [n for n in (method.name, *aliases) if n in _REGISTRY or n in _ALIASES]
+        if taken:
+            raise InputError(f"method name {taken[0]!r} is already taken")
+        _PLUGINS.add(method.name)
     _REGISTRY[method.name] = method
     for alias in aliases:
         _ALIASES[alias] = method.name
@@ -187,6 +216,39 @@ def get_method(name: str) -> Method:
     if key not in _REGISTRY:
         known = ", ".join(m.name for m in methods())
         raise InputError(f"unknown method {name!r} (known: {known})")
+    return _REGISTRY[key]
+
+
+def is_command(name: str) -> bool:
+    """Whether ``name`` is an external command: ``cmd:...``, a command built before, or a
+    name of the generated form ``cmd-PROGRAM-xxxxxx`` that no table method has."""
+    name = name.strip()
+    if name.startswith("cmd:") or name in _COMMANDS:
+        return True
+    _ensure_builtins()
+    return bool(_COMMAND_NAME.match(name)) and name not in _REGISTRY
+
+
+def header_method(name: str, where: str) -> Method:
+    """The method an output's header names (``mcdenoise:method``) in the file ``where``:
+    a method of the table (a built-in, an installed plugin) or one of its aliases, and
+    nothing else. A file may come from anyone, so its header never builds or finds an
+    external command (that would run a program named by the file) and never names a method
+    that is not installed here.
+
+    Raises:
+        InputError: one line naming ``where``: a command, or a method not in the table.
+    """
+    if is_command(name):
+        raise InputError(
+            f"{where}: its header names the external command {name.strip()!r}: not run (a "
+            "file's header never runs a program; judge it with --ref, or denoise again with "
+            "--method 'cmd:...')"
+        )
+    _ensure_builtins()
+    key = _ALIASES.get(name, name)
+    if key not in _REGISTRY:
+        raise InputError(f"{where}: its header names method {name!r}, which is not installed here")
     return _REGISTRY[key]
 
 
@@ -230,6 +292,12 @@ def available_methods() -> list[Method]:
     return [m for m in methods() if m.unavailable() is None]
 
 
+def is_plugin(name: str) -> bool:
+    """Whether the table's method ``name`` came from a plugin (never the default)."""
+    _ensure_builtins()
+    return name in _PLUGINS
+
+
 def aliases() -> dict[str, str]:
     """Every alias and the method it names (``{"xbf": "cross-bilateral", ...}``), sorted."""
     _ensure_builtins()
@@ -251,7 +319,9 @@ class MethodChoice:
 
 
 def choose_method(buffers: FeatureBuffers, *, exclude: Collection[str] = ()) -> MethodChoice:
-    """The default method for ``buffers``: the best available one that accepts them.
+    """The default method for ``buffers``: the best available one that accepts them, among
+    the methods that are not a plugin's (a plugin runs when named; ranked above the choice,
+    it is in ``skipped`` with that reason).
 
     ``exclude``: names of methods not to consider (ones that already failed on this input;
     the caller keeps their reasons).
@@ -262,6 +332,9 @@ def choose_method(buffers: FeatureBuffers, *, exclude: Collection[str] = ()) -> 
     skipped: list[tuple[str, str]] = []
     for m in methods():
         if m.name in exclude:
+            continue
+        if m.name in _PLUGINS:
+            skipped.append((m.name, "a plugin: never the default (name it with --method)"))
             continue
         reason = m.unavailable()
         if reason is not None:
@@ -277,9 +350,11 @@ def choose_method(buffers: FeatureBuffers, *, exclude: Collection[str] = ()) -> 
 
 def best_method(buffers: FeatureBuffers | None = None) -> Method:
     """The default method for ``buffers`` (:func:`choose_method`); without ``buffers``, the
-    best available method (what an input with every buffer and its variance gets)."""
+    best available method that is not a plugin's (what an input with every buffer and its
+    variance gets)."""
     if buffers is not None:
         return choose_method(buffers).method
     for m in available_methods():
-        return m
+        if m.name not in _PLUGINS:
+            return m
     raise InputError("no denoising method is available here")

@@ -92,7 +92,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
@@ -107,6 +107,9 @@ from mcdenoise.filters.two_buffer import (
 )
 from mcdenoise.io.buffers import FeatureBuffers, check_halves, half_inputs, has_halves
 from mcdenoise.losses import RELMSE_EPS
+
+if TYPE_CHECKING:
+    from mcdenoise.method import Method
 
 __all__ = [
     "BLOCK",
@@ -354,8 +357,10 @@ def estimate_noisy(
     )
 
 
-#: Runs a method again: ``(half input, method name, its recorded parameters) -> (3, H, W)``.
-Rerun = Callable[[FeatureBuffers, str, dict[str, Any]], Tensor]
+#: Runs a method again: ``(half input, the method, its recorded parameters) -> (3, H, W)``;
+#: the method is the one the output's header names, looked up with
+#: :func:`mcdenoise.registry.header_method` (never an external command).
+Rerun = Callable[[FeatureBuffers, "Method", dict[str, Any]], Tensor]
 
 
 def estimate_files(
@@ -459,10 +464,14 @@ def _renormalise(
 ) -> None:
     """Each output's row of ``outs`` re-estimated with ``pseudo`` as normaliser: its method
     (from the header) run again on each half of ``fb``; a row whose method cannot run again
-    keeps its own-normalised estimate, with a note saying why."""
+    keeps its own-normalised estimate, with a note saying why. A header naming an external
+    command or a method not installed here is refused (:func:`mcdenoise.registry.
+    header_method`: a file never makes mcdenoise run a program), told to ``log`` in one line
+    naming the file."""
     import json
 
     from mcdenoise.io.buffers import sanitize
+    from mcdenoise.registry import header_method
 
     half_a, half_b = split_halves(fb)
     clean, _ = sanitize(fb)
@@ -472,10 +481,17 @@ def _renormalise(
             continue
         method = row["method"]
         try:
+            m = header_method(method, str(f))
+        except InputError as err:
+            row["note"] = f"own normaliser: {' '.join(str(err).split())}"
+            if log is not None:
+                log(" ".join(str(err).split()))
+            continue
+        try:
             params = json.loads(str(attrs.get("mcdenoise:params") or "{}"))
             if log is not None:
                 log(f"{f.name}: {method} on each half of its source (shared normaliser)")
-            out_a, out_b = rerun(half_a, method, params), rerun(half_b, method, params)
+            out_a, out_b = rerun(half_a, m, params), rerun(half_b, m, params)
         except (McdenoiseError, ValueError) as err:
             row["note"] = (
                 f"own normaliser: {method} did not run again: {' '.join(str(err).split())}"

@@ -23,8 +23,18 @@ command there, reads ``{output}`` back and checks its size. The placeholders:
 The template is split like a shell would (:func:`shlex.split`) but run without one, so a path
 with spaces stays one argument and nothing is expanded. The command runs with the temporary
 folder as its working directory (its scratch files go away with it); so that the template
-reads as it would in a shell, the program and any argument naming a file or folder that
-exists relative to the folder mcdenoise was started in are made absolute first.
+reads as it would in a shell, the program, an interpreter's script (``python my.py``) and
+every argument holding a path separator (``models/w.pt``, ``./x``) that names a file or
+folder existing relative to the folder mcdenoise was started in are made absolute first
+(:func:`_absolute_args`). Any other word stays as written, even where a file of that name
+happens to exist (``--mode blur`` beside a file ``blur``).
+
+The command dies with mcdenoise: on Linux the kernel kills it (``SIGKILL``) when the thread
+that started it ends, a ``kill -9`` of mcdenoise included (``PR_SET_PDEATHSIG``,
+:func:`_die_with_parent`); its own children are ended with it at a timeout or Ctrl-C (it runs
+in a session of its own). The temporary folders of commands whose mcdenoise process is gone
+(``mcdenoise-cmd-<pid>-*``), and any older than an hour without a recorded process, are
+removed before the next command runs (:func:`sweep_stale_folders`).
 
 The command gets mcdenoise's environment plus the thread count it runs with
 (``MCDENOISE_THREADS``, and ``OMP_NUM_THREADS`` unless set): :func:`command_env`.
@@ -37,11 +47,15 @@ reading its output, so it is not comparable with an in-process method's time on 
 footing (the reports say so through the method's summary). Provenance: the parameters
 recorded in every output (``mcdenoise:params``) hold the command template and the first line
 that ``PROGRAM --version`` (``python SCRIPT --version`` for a script run by an interpreter)
-printed within 2 seconds with exit status 0 (empty when it did not answer so).
+printed within 2 seconds with exit status 0 (empty when it did not answer so). That probe
+runs the program too, so it is never run when the method is built (a spec parsed, a name
+looked up): only when the method's parameters are first read for a denoise that needs them
+(:class:`CommandParams`).
 """
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import os
 import re
@@ -49,10 +63,12 @@ import shlex
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
-from collections.abc import Mapping
+import time
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +97,12 @@ PLACEHOLDERS: dict[str, tuple[str, ...]] = {
 }
 #: stderr lines quoted in a failure.
 STDERR_LINES = 5
+#: Prefix of a command's temporary folder; the pid of the mcdenoise process follows.
+FOLDER_PREFIX = "mcdenoise-cmd-"
+#: Seconds after which a temporary folder without a recorded process is swept.
+STALE_SECONDS = 3600.0
+#: ``prctl`` option: the signal a process gets when its parent (thread) dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
 
 _FIELD = re.compile(r"\{\{|\}\}|\{([^{}]*)\}|[{}]")
 #: Interpreters whose script (the next argument) names the method.
@@ -170,19 +192,29 @@ def method_name(text: str) -> str:
 
 def _program(argv0: str) -> str | None:
     """The program's absolute path: a path (relative to the current folder) or on PATH."""
-    if os.sep in argv0 or (os.altsep and os.altsep in argv0):
+    if _has_separator(argv0):
         p = Path(argv0).expanduser()
         # abspath, not resolve: a venv's python is a symlink that must stay the venv's
         return os.path.abspath(p) if p.is_file() and os.access(p, os.X_OK) else None
     return shutil.which(argv0)
 
 
-def _absolute_args(argv: list[str]) -> list[str]:
-    """Arguments naming an existing file or folder (relative to the current folder) made
-    absolute, since the command runs in a temporary folder."""
+def _has_separator(token: str) -> bool:
+    return os.sep in token or bool(os.altsep and os.altsep in token)
+
+
+def _absolute_args(argv: list[str], program: str) -> list[str]:
+    """The arguments after the program (``argv[1:]`` of the template, placeholders filled)
+    with the ones that name a path made absolute, since the command runs in a temporary
+    folder: an interpreter's script (``python my.py``: the next argument when ``program`` is
+    an interpreter) and every argument holding a path separator, when it exists relative to
+    the current folder. A plain word stays as written even when a file of that name exists
+    here (``blur`` in ``den --mode blur``): a path is what the template says is one."""
     out = []
-    for token in argv:
-        if token and not token.startswith("-") and not os.path.isabs(token):
+    for i, token in enumerate(argv):
+        script = i == 0 and bool(_INTERPRETERS.match(Path(program).name))
+        path_like = script or _has_separator(token)
+        if path_like and token and not token.startswith("-") and not os.path.isabs(token):
             p = Path(token)
             if p.exists():
                 token = os.path.abspath(p)
@@ -292,7 +324,8 @@ def run_command(
     if program is None:
         raise InputError(f"command {template.text!r}: program {template.argv[0]!r} not found")
     h, w = buffers.shape
-    with tempfile.TemporaryDirectory(prefix="mcdenoise-cmd-") as tmp:
+    _sweep_once()
+    with tempfile.TemporaryDirectory(prefix=f"{FOLDER_PREFIX}{os.getpid()}-") as tmp:
         folder = Path(tmp)
         paths: dict[str, str] = {}
         for name, fmt in template.fields.items():
@@ -302,7 +335,7 @@ def run_command(
                 save_buffers(path, buffers)
             elif name != "output":
                 _write_feature(path, buffers[name], fmt)
-        argv = [program, *_absolute_args(template.fill(paths)[1:])]
+        argv = [program, *_absolute_args(template.fill(paths)[1:], template.argv[0])]
         out, fmt = Path(paths["output"]), template.fields["output"]
         proc = subprocess.Popen(
             argv,
@@ -314,6 +347,7 @@ def run_command(
             text=True,
             errors="replace",
             start_new_session=True,  # the timeout ends the command's own children too
+            preexec_fn=_die_with_parent(),  # a kill -9 of mcdenoise ends the command
         )
         try:
             _, err = proc.communicate(timeout=timeout)
@@ -351,6 +385,108 @@ def command_env(env: Mapping[str, str] | None = None) -> dict[str, str]:
     return out
 
 
+def _die_with_parent() -> Callable[[], None] | None:
+    """Linux: the ``preexec_fn`` that makes the kernel send the command ``SIGKILL`` when the
+    thread that started it ends, however it ends (``kill -9`` of mcdenoise included); it
+    runs in the child between ``fork`` and ``exec``. ``None`` elsewhere (the process group
+    still ends the command at a timeout or Ctrl-C, and :func:`sweep_stale_folders` its
+    folder).
+
+    ``prctl`` is looked up here, in the parent, so the child only makes the call (a child of
+    a threaded process must not import or load anything before ``exec``). The signal is
+    tied to the calling *thread*: :func:`run_command` waits for the command in the thread
+    that started it. A parent that died before the call is noticed through ``getppid``.
+    """
+    prctl = _prctl()
+    if prctl is None:
+        return None
+    parent = os.getpid()
+    kill = int(signal.SIGKILL)
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, kill, 0, 0, 0)
+        if os.getppid() != parent:  # mcdenoise died before the line above took effect
+            os._exit(137)
+
+    return preexec
+
+
+@cache
+def _prctl() -> Any:
+    """libc's ``prctl`` (Linux), or ``None``."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):  # pragma: no cover - a libc without prctl
+        return None
+    fn.argtypes = [ctypes.c_int, *[ctypes.c_ulong] * 4]
+    fn.restype = ctypes.c_int
+    return fn
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine (another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except OSError:  # pragma: no cover - e.g. a pid out of range
+        return False
+    return True
+
+
+def _stale_folders(root: Path, now: float) -> Iterator[Path]:
+    """This user's command folders under ``root`` that no running command uses: the pid in
+    the name (``mcdenoise-cmd-<pid>-xxxx``) is not a running process, or the name holds none
+    (folders of older versions) and it is older than :data:`STALE_SECONDS`."""
+    uid = os.getuid() if hasattr(os, "getuid") else None
+    try:
+        entries = list(os.scandir(root))
+    except OSError:
+        return
+    for entry in entries:
+        if not entry.name.startswith(FOLDER_PREFIX):
+            continue
+        try:
+            st = entry.stat(follow_symlinks=False)
+        except OSError:
+            continue
+        if not entry.is_dir(follow_symlinks=False) or (uid is not None and st.st_uid != uid):
+            continue
+        pid_text = entry.name[len(FOLDER_PREFIX) :].partition("-")[0]
+        if pid_text.isdigit() and "-" in entry.name[len(FOLDER_PREFIX) :]:
+            pid = int(pid_text)
+            if pid == os.getpid() or _alive(pid):
+                continue
+        elif now - st.st_mtime < STALE_SECONDS:
+            continue
+        yield Path(entry.path)
+
+
+def sweep_stale_folders(root: str | os.PathLike[str] | None = None) -> list[Path]:
+    """Remove the temporary folders of commands that no running mcdenoise process owns
+    (:func:`_stale_folders`) from ``root`` (default: the temporary folder); returns them.
+    Errors (a folder removed meanwhile, another user's) are ignored."""
+    base = Path(tempfile.gettempdir() if root is None else root)
+    removed = []
+    for folder in _stale_folders(base, time.time()):
+        try:
+            shutil.rmtree(folder)
+        except OSError:
+            continue
+        removed.append(folder)
+    return removed
+
+
+@cache
+def _sweep_once() -> None:
+    """:func:`sweep_stale_folders`, once per process (before its first command)."""
+    sweep_stale_folders()
+
+
 def _kill(proc: subprocess.Popen[str]) -> None:
     """End the command and its children (its own session, POSIX), or the command alone."""
     try:
@@ -367,20 +503,74 @@ def _failure(template: Template, what: str, stderr: str) -> str:
     return f"command {template.text!r}: {what}" + (f"; stderr: {tail}" if tail else "")
 
 
+class CommandParams(Mapping[str, Any]):
+    """The parameters of a command method (its :attr:`Method.defaults`): ``command`` (the
+    template), ``version`` and ``timeout`` (:data:`DEFAULT_TIMEOUT`).
+
+    ``version`` is what ``PROGRAM --version`` prints (:func:`program_version`), and asking
+    runs the program: it is asked the first time the value is read, which is when the
+    method's parameters are resolved for a denoise (:meth:`Method.resolve_params`: before
+    the first frame, or when ``mcdenoise denoise`` checks ``--param``), an experiment's unit
+    fingerprint, or a record. Building the method, listing the keys (``"command" in
+    defaults``) or reading ``command`` runs nothing.
+    """
+
+    KEYS = ("command", "version", "timeout")
+
+    def __init__(self, template: Template) -> None:
+        self.template = template
+        self._version: str | None = None
+
+    def version(self) -> str:
+        """The program's version line (asked once, then kept), ``""`` without an answer."""
+        if self._version is None:
+            program = _program(self.template.argv[0])
+            argv = _version_argv(program, self.template.argv) if program else None
+            self._version = program_version(tuple(argv)) if argv else ""
+        return self._version
+
+    def __getitem__(self, key: str) -> Any:
+        if key == "command":
+            return self.template.text
+        if key == "version":
+            return self.version()
+        if key == "timeout":
+            return DEFAULT_TIMEOUT
+        raise KeyError(key)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.KEYS
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.KEYS)
+
+    def __len__(self) -> int:
+        return len(self.KEYS)
+
+    def __eq__(self, other: object) -> bool:  # without asking the version
+        return isinstance(other, CommandParams) and other.template.text == self.template.text
+
+    __hash__ = None  # type: ignore[assignment]  # a mapping, as a dict
+
+    def __repr__(self) -> str:
+        version = "<not asked yet>" if self._version is None else repr(self._version)
+        return f"CommandParams(command={self.template.text!r}, version={version})"
+
+
 def command_method(text: str, *, name: str | None = None) -> Method:
     """The per-frame :class:`~mcdenoise.method.Method` of a command template (the text after
-    ``cmd:``); ``name`` defaults to :func:`method_name`.
+    ``cmd:``); ``name`` defaults to :func:`method_name`. Building it runs nothing.
 
-    Its parameters (recorded in every output's header): ``command`` (the template; fixed:
-    another command is another method), ``version`` (``PROGRAM --version``, fixed) and
+    Its parameters (recorded in every output's header; :class:`CommandParams`): ``command``
+    (the template; fixed: another command is another method), ``version`` (``PROGRAM
+    --version``, asked when the parameters are first resolved for a denoise; fixed) and
     ``timeout`` (seconds per frame).
 
     Raises:
         InputError: a bad template (:func:`parse_template`).
     """
     template = parse_template(text.strip())
-    program = _program(template.argv[0])
-    version = program_version(tuple(_version_argv(program, template.argv))) if program else ""
+    defaults = CommandParams(template)
     per_file = [f for f in ("albedo", "normal") if f in template.fields]
     if "input" in template.fields:
         uses = tuple(b for b in BUFFER_NAMES if b != "color" and b not in per_file)
@@ -395,8 +585,13 @@ def command_method(text: str, *, name: str | None = None) -> Method:
         return None
 
     def run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> torch.Tensor:
-        if params["command"] != template.text or params["version"] != version:
-            raise InputError("the command and version of a cmd: method are fixed")
+        # command and version are provenance, not settings: --param cannot change what the
+        # outputs record (the version was asked when params were resolved, and is kept)
+        if params["command"] != template.text or params["version"] != defaults.version():
+            raise InputError(
+                "the command and version of a cmd: method are fixed (what ran, and what "
+                "its --version printed); only timeout can be set"
+            )
         timeout = float(params["timeout"])
         if not timeout > 0:
             raise InputError(f"timeout must be > 0 seconds, got {params['timeout']!r}")
@@ -408,7 +603,7 @@ def command_method(text: str, *, name: str | None = None) -> Method:
         "(writing its inputs, start-up, its work, reading its output)",
         requires=("color", *per_file),
         uses=uses,
-        defaults={"command": template.text, "version": version, "timeout": DEFAULT_TIMEOUT},
+        defaults=defaults,
         run=run,
         priority=-100,
         unavailable=unavailable,
@@ -420,6 +615,7 @@ __all__ = [
     "DEFAULT_TIMEOUT",
     "PLACEHOLDERS",
     "PREFIX",
+    "CommandParams",
     "Template",
     "command_env",
     "command_method",
@@ -428,5 +624,6 @@ __all__ = [
     "program_version",
     "read_pfm",
     "run_command",
+    "sweep_stale_folders",
     "write_pfm",
 ]
