@@ -103,6 +103,12 @@ class _MetricsOption(click.Option):
     "units (an error names the shards that have not finished).",
 )
 @click.option(
+    "--allow-commands",
+    is_flag=True,
+    help="With --experiment: let the spec run the external programs it names ([[external]], "
+    "'cmd:...' methods); a spec that names any is refused without it, listing them.",
+)
+@click.option(
     "--force",
     is_flag=True,
     help="Evaluate outputs whose recorded source shows another scene than the reference "
@@ -120,6 +126,7 @@ def eval_cmd(
     warmup,
     shard,
     merge,
+    allow_commands,
     force,
 ):
     """Compare denoised OUTPUTS (files or folders) with a reference; write a report.
@@ -140,7 +147,8 @@ def eval_cmd(
     \b
     With --experiment SPEC (no OUTPUTS, no --ref): run the experiment and write
     report.html, results.json and results.csv into -o DIR. --shard I/N runs share I of N
-    (e.g. I = $SLURM_ARRAY_TASK_ID), --merge then writes the one report.
+    (e.g. I = $SLURM_ARRAY_TASK_ID), --merge then writes the one report. A spec that names
+    external programs ([[external]], 'cmd:...') runs them only with --allow-commands.
     """
     from mcdenoise.denoise import check_output_folder
 
@@ -149,6 +157,8 @@ def eval_cmd(
     names = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
     if experiment is None and (shard is not None or merge):
         raise click.UsageError("--shard and --merge apply to --experiment SPEC")
+    if experiment is None and allow_commands:
+        raise click.UsageError("--allow-commands applies to --experiment SPEC")
     if experiment is not None:
         if shard is not None and merge:
             raise click.UsageError("--shard runs one share, --merge builds the report: not both")
@@ -158,7 +168,16 @@ def eval_cmd(
             raise click.UsageError("--force applies to --ref, not to --experiment")
         if warmup is not None:
             raise click.UsageError("--warmup applies to --ref sequences, not to --experiment")
-        _experiment(experiment, out_dir, names, mode, threads, shard=shard, merge=merge)
+        _experiment(
+            experiment,
+            out_dir,
+            names,
+            mode,
+            threads,
+            shard=shard,
+            merge=merge,
+            allow_commands=allow_commands,
+        )
         return
     if not outputs:
         raise click.UsageError("Missing argument 'OUTPUTS...' (or give --experiment SPEC).")
@@ -214,13 +233,23 @@ def _estimated(outputs, out_dir):
             click.echo(f"{kind}: {path}")
 
 
-def _experiment(spec_path, out_dir, metrics, progress, threads=None, *, shard=None, merge=False):
+def _experiment(
+    spec_path,
+    out_dir,
+    metrics,
+    progress,
+    threads=None,
+    *,
+    shard=None,
+    merge=False,
+    allow_commands=False,
+):
     from mcdenoise_cli.parsing import parse_shard
 
     from mcdenoise.experiments import load_experiment, run_experiment
 
     summary = run_experiment(
-        _with_threads(load_experiment(spec_path), threads),
+        _with_threads(load_experiment(spec_path, allow_commands=allow_commands), threads),
         out_dir,
         progress=progress,
         metrics=metrics,

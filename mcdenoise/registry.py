@@ -70,6 +70,7 @@ __all__ = [
     "available_methods",
     "best_method",
     "choose_method",
+    "command_template",
     "dataclass_defaults",
     "get_method",
     "header_method",
@@ -227,6 +228,16 @@ def is_command(name: str) -> bool:
         return True
     _ensure_builtins()
     return bool(_COMMAND_NAME.match(name)) and name not in _REGISTRY
+
+
+def command_template(name: str) -> str | None:
+    """The command template ``name`` runs: the text after ``cmd:``, or the template of a
+    command built before under that name; ``None`` for anything else. Builds nothing."""
+    name = name.strip()
+    if name.startswith("cmd:"):
+        return name.removeprefix("cmd:").strip()
+    known = _COMMANDS.get(name)
+    return None if known is None else str(known.defaults["command"])
 
 
 def header_method(name: str, where: str) -> Method:

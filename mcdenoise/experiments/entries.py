@@ -66,8 +66,9 @@ def plan_methods(spec: ExperimentSpec) -> tuple[list[MethodEntry], dict[str, str
     order, then the sweeps) and the skipped ones: label -> reason it cannot run here.
 
     ``methods = "all"`` takes every registered method, so a method added to the registry is
-    in the next experiment without any change here, then the spec's ``[[external]]`` methods
-    (declared in the spec to be judged; see :mod:`mcdenoise.experiments.spec`).
+    in the next experiment without any change here; never an external command (a spec's
+    ``[[external]]`` method runs where the spec names it; see
+    :mod:`mcdenoise.experiments.spec`).
 
     Raises:
         ExperimentError: two entries would get the same label.
@@ -75,7 +76,7 @@ def plan_methods(spec: ExperimentSpec) -> tuple[list[MethodEntry], dict[str, str
     entries = [MethodEntry(NOISY, NOISY, {}, "plain Monte Carlo rendering, no denoiser")]
     skipped: dict[str, str] = {}
     if spec.methods == "all":
-        names = [m.name for m in methods()] + [e.name for e in spec.externals]
+        names = [m.name for m in methods()]
     else:
         names = [n for n in spec.methods if n != NOISY]
     for name in names:

@@ -101,16 +101,25 @@ registered as a method named ``name`` through :func:`mcdenoise.registry.add_comm
 ``methods`` is checked, so ``name`` goes wherever a method name goes (``methods``,
 ``[params.NAME]``, ``[[sweep]] method``, ``[stats] baseline``). ``command`` is a template of
 :mod:`mcdenoise.methods.external` (``{input}``/``{output}``, or OIDN's ``{color}``,
-``{albedo}``, ``{normal}``); a template token naming a file or folder that exists relative to
-the spec's folder is made absolute (``python my.py ...`` beside the spec works from any
-current folder). ``timeout`` becomes the method's ``timeout`` parameter (giving it in
-``[params.NAME]`` too is an error). ``methods = "all"`` takes every registered method *and*
-the spec's externals: a spec that declares a program means it to be judged, while plain
-``cmd:...`` methods elsewhere (the command line) are never part of ``all``. A missing name or
-command, a name given twice, a name that is a built-in method or alias (or ``noisy``), or a
-bad template is refused with one line. An external method's times are the whole process
-(writing its inputs, starting it, its work, reading its output); the report marks them
-(:func:`mcdenoise.experiments.timing.timing_clock`).
+``{albedo}``, ``{normal}``); the program, an interpreter's script (``python my.py``) and
+every token holding a path separator that name a file or folder existing relative to the
+spec's folder are made absolute (``python my.py ...`` beside the spec works from any current
+folder; :func:`_spec_relative`). ``timeout`` becomes the method's ``timeout`` parameter
+(giving it in ``[params.NAME]`` too is an error). Like ``cmd:...`` methods on the command
+line, external methods are never part of ``methods = "all"``: a spec that declares one lists
+it in ``methods`` (or sweeps it), and ``"all"`` with an ``[[external]]`` that nothing names
+is refused. A missing name or command, a name given twice, a name that is a built-in method
+or alias (or ``noisy``), or a bad template is refused with one line. An external method's
+times are the whole process (writing its inputs, starting it, its work, reading its output);
+the report marks them (:func:`mcdenoise.experiments.timing.timing_clock`).
+
+A spec that runs programs (an ``[[external]]`` entry, or a ``cmd:...`` method in ``methods``,
+``[params]`` or a ``[[sweep]]``) is code: someone else's spec could run anything. Unless
+``allow_commands`` is given (``mcdenoise eval --experiment SPEC --allow-commands``) it is
+refused before anything is registered or run, in one line listing every command line it
+would run (:func:`spec_commands`). Parsing runs no program either way: a command's
+``--version`` is asked only when its parameters are resolved for a run
+(:class:`mcdenoise.methods.external.CommandParams`).
 
 Errors are :class:`ExperimentError` naming the file and the key, e.g.
 ``demo.toml: sweep[0].values[1]: method 'cross-bilateral' ...``. Method names and sweep
@@ -430,17 +439,30 @@ def parse_experiment(
     *,
     source: str = "<spec>",
     base: str | os.PathLike[str] | None = None,
+    allow_commands: bool = False,
 ) -> ExperimentSpec:
     """Validate an experiment spec given as a mapping (a parsed TOML file).
 
     ``base`` is the folder relative scene paths are resolved against (the spec's folder).
+    ``allow_commands``: the spec may run external programs (``[[external]]``, ``cmd:...``);
+    without it such a spec is refused (module docstring).
 
     Raises:
         ExperimentError: a missing, unknown or invalid key; the message names ``source`` and
-            the key path.
+            the key path. A spec that names commands without ``allow_commands``: one line
+            listing each command line.
     """
     ctx = _Ctx(source, Path(base) if base is not None else None)
     top = _table(ctx, "", data, _TOP_KEYS)
+    if not allow_commands:
+        commands = spec_commands(top, base=ctx.base)
+        if commands:
+            listed = "; ".join(f"{cmd!r} ({where})" for where, cmd in commands)
+            raise ctx.error(
+                "",
+                f"the spec runs {len(commands)} external program(s) as you, refused "
+                f"without --allow-commands: {listed}",
+            )
     name = top.get("name", Path(source).stem if source != "<spec>" else "experiment")
     name = _str(ctx, "name", name)
     description = top.get("description", "")
@@ -516,6 +538,15 @@ def parse_experiment(
     methods: str | tuple[str, ...]
     if raw_methods == "all":
         methods = "all"
+        swept = {str(sw.get("method")) for sw in top.get("sweep", []) if isinstance(sw, Mapping)}
+        for i, ext in enumerate(externals):
+            if ext.name not in swept:
+                raise ctx.error(
+                    f"external[{i}].name",
+                    f'{ext.name!r} would never run: methods = "all" takes the registered '
+                    "methods, never an external command; list the methods to run "
+                    f'(methods = ["{ext.name}", "nlm", ...])',
+                )
     elif isinstance(raw_methods, str):
         raise ctx.error("methods", f'must be "all" or a list of method names, got {raw_methods!r}')
     else:
@@ -663,6 +694,50 @@ def parse_experiment(
     )
 
 
+def spec_commands(
+    top: Mapping[str, Any], *, base: str | os.PathLike[str] | None = None
+) -> list[tuple[str, str]]:
+    """Every external command the spec ``top`` (a parsed TOML table) would run, as
+    ``(where, command line)``: each ``[[external]]`` command (as it would run: paths beside
+    the spec made absolute, :func:`_spec_relative`) and each ``cmd:...`` method, or a command
+    method built before in this process, named in ``methods``, ``[params]`` or a
+    ``[[sweep]]``. Looks only: registers and runs nothing, and skips what is malformed
+    (the parser says what is wrong with it)."""
+    from mcdenoise.registry import command_template
+
+    ctx = _Ctx("<spec>", None if base is None else Path(base))
+    out: list[tuple[str, str]] = []
+
+    def named(where: str, name: Any) -> None:
+        text = command_template(name) if isinstance(name, str) else None
+        if text is not None:
+            out.append((where, text))
+
+    ext = top.get("external", [])
+    for i, entry in enumerate([ext] if isinstance(ext, Mapping) else ext):
+        if isinstance(entry, Mapping) and isinstance(entry.get("command"), str):
+            name = entry.get("name")
+            where = f"external[{i}]" + (f" {name!r}" if isinstance(name, str) else "")
+            out.append((where, _spec_relative(ctx, entry["command"].strip())))
+    raw = top.get("methods")
+    if isinstance(raw, Sequence) and not isinstance(raw, str):
+        for i, name in enumerate(raw):
+            named(f"methods[{i}]", name)
+    params = top.get("params")
+    if isinstance(params, Mapping):
+        for name in params:
+            named(f"params.{name}", name)
+    sweeps = top.get("sweep")
+    if isinstance(sweeps, Sequence) and not isinstance(sweeps, str):
+        for i, sw in enumerate(sweeps):
+            if isinstance(sw, Mapping):
+                named(f"sweep[{i}].method", sw.get("method"))
+    first: dict[str, str] = {}  # a command named twice is listed once
+    for where, cmd in out:
+        first.setdefault(cmd, where)
+    return [(where, cmd) for cmd, where in first.items()]
+
+
 def _externals(ctx: _Ctx, value: Any) -> tuple[External, ...]:
     """``[[external]]`` entries, checked and registered (:func:`mcdenoise.registry.add_command`)
     under their names, so the rest of the spec can name them."""
@@ -705,10 +780,17 @@ def _externals(ctx: _Ctx, value: Any) -> tuple[External, ...]:
 
 
 def _spec_relative(ctx: _Ctx, command: str) -> str:
-    """``command`` with every whole token that names an existing file or folder relative to
-    the spec's folder made absolute (tokens with placeholders or options are left alone), so
-    a script beside the spec runs whatever folder mcdenoise is started in."""
+    """``command`` with the tokens that name a path, and exist relative to the spec's
+    folder, made absolute, so a script beside the spec runs whatever folder mcdenoise is
+    started in: the program when it holds a path separator (``./den``; a bare name is looked
+    up on PATH), an interpreter's script (``python my.py``) and every other token holding a
+    separator (``models/w.pt``). A plain word stays as written even when a file of that
+    name lies beside the spec, as on the command line
+    (:func:`mcdenoise.methods.external._absolute_args`); tokens with placeholders or options
+    are left alone."""
     import shlex
+
+    from mcdenoise.methods.external import is_interpreter
 
     if ctx.base is None:
         return command
@@ -720,8 +802,11 @@ def _spec_relative(ctx: _Ctx, command: str) -> str:
     for i, token in enumerate(tokens):
         if not token or token.startswith("-") or "{" in token or Path(token).is_absolute():
             continue
+        script = i == 1 and is_interpreter(tokens[0])
+        if not (script or os.sep in token or "/" in token):
+            continue
         p = ctx.base / token
-        if (i > 0 or os.sep in token or "/" in token) and p.exists():
+        if p.exists():
             tokens[i] = str(p.resolve())
             changed = True
     return shlex.join(tokens) if changed else command
@@ -800,11 +885,15 @@ def _animate(
     return out
 
 
-def load_experiment(path: str | os.PathLike[str]) -> ExperimentSpec:
+def load_experiment(
+    path: str | os.PathLike[str], *, allow_commands: bool = False
+) -> ExperimentSpec:
     """Read and validate an experiment spec (TOML); paths in it are relative to its folder.
+    ``allow_commands``: it may run external programs (:func:`parse_experiment`).
 
     Raises:
-        ExperimentError: the file is missing, not TOML, or invalid (message names file and key).
+        ExperimentError: the file is missing, not TOML, or invalid (message names file and
+            key), or names commands without ``allow_commands``.
     """
     p = Path(path)
     if not p.is_file():
@@ -815,4 +904,4 @@ def load_experiment(path: str | os.PathLike[str]) -> ExperimentSpec:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise ExperimentError(f"{p}: not valid TOML: {' '.join(str(err).split())}") from None
-    return parse_experiment(data, source=str(p), base=p.parent)
+    return parse_experiment(data, source=str(p), base=p.parent, allow_commands=allow_commands)

@@ -45,10 +45,12 @@ def timing_clock(method: str) -> str | None:
     (True, 'in-process')
     """
     from mcdenoise.errors import McdenoiseError
-    from mcdenoise.registry import get_method
+    from mcdenoise.registry import get_method, is_command
 
     if method == "noisy":
         return None
+    if is_command(method):  # a name read from a record builds no command
+        return PROCESS
     try:
         m = get_method(method)
     except McdenoiseError:

@@ -172,6 +172,12 @@ def parse_template(text: str) -> Template:
     return Template(text, tuple(argv), fields)
 
 
+def is_interpreter(program: str) -> bool:
+    """Whether ``program`` (a name or path) is an interpreter whose next argument is the
+    script that names the method (``python``, ``sh``, ``node``, ...)."""
+    return bool(_INTERPRETERS.match(Path(program).name))
+
+
 def _stem(argv: tuple[str, ...]) -> str:
     """The program's name, or the script's for an interpreter (``python x.py`` -> ``x``)."""
     prog = Path(argv[0]).name
@@ -212,7 +218,7 @@ def _absolute_args(argv: list[str], program: str) -> list[str]:
     here (``blur`` in ``den --mode blur``): a path is what the template says is one."""
     out = []
     for i, token in enumerate(argv):
-        script = i == 0 and bool(_INTERPRETERS.match(Path(program).name))
+        script = i == 0 and is_interpreter(program)
         path_like = script or _has_separator(token)
         if path_like and token and not token.startswith("-") and not os.path.isabs(token):
             p = Path(token)
@@ -619,6 +625,7 @@ __all__ = [
     "Template",
     "command_env",
     "command_method",
+    "is_interpreter",
     "method_name",
     "parse_template",
     "program_version",

@@ -43,8 +43,13 @@ def _entry(name: str, args: str = "blur {input} {output}", extra: str = "") -> s
     return f"[[external]]\nname = {json.dumps(name)}\ncommand = {cmd}\n{extra}"
 
 
+def _parse(data: dict, **kw: object):
+    """A spec that runs programs, allowed (``--allow-commands``)."""
+    return parse_experiment(data, source="x.toml", allow_commands=True, **kw)
+
+
 def test_a_named_external_method_is_a_method_of_the_spec() -> None:
-    spec = parse_experiment(_spec(_entry("mine", extra="timeout = 30\n")), source="x.toml")
+    spec = _parse(_spec(_entry("mine", extra="timeout = 30\n")))
     assert [e.name for e in spec.externals] == ["mine"]
     assert spec.params["mine"] == {"timeout": 30.0}
     assert registry.get_method("mine").defaults["command"].endswith("blur {input} {output}")
@@ -54,10 +59,16 @@ def test_a_named_external_method_is_a_method_of_the_spec() -> None:
     assert spec.to_dict()["external"][0]["name"] == "mine"
 
 
-def test_all_includes_the_spec_externals_after_the_registry() -> None:
-    spec = parse_experiment(_spec(_entry("mine"), methods='"all"'), source="x.toml")
+def test_all_never_includes_an_external_method() -> None:
+    """Commands are never part of ``all``; an ``[[external]]`` that ``all`` would leave out
+    (nothing names it) is refused rather than silently not run; swept, it runs."""
+    with pytest.raises(ExperimentError, match=r"external\[0\]\.name: 'mine' would never run"):
+        _parse(_spec(_entry("mine"), methods='"all"'))
+    sweep = '[[sweep]]\nmethod = "mine"\nparam = "timeout"\nvalues = [5, 9]\n'
+    spec = _parse(_spec(_entry("mine") + sweep, methods='"all"'))
     labels = [e.label for e in plan_methods(spec)[0]]
-    assert labels[-1] == "mine" and "nlm" in labels
+    assert "nlm" in labels and "mine" not in labels
+    assert labels[-2:] == ["mine[timeout=5]", "mine[timeout=9]"]
 
 
 def test_a_script_beside_the_spec_is_found_from_anywhere(
@@ -70,7 +81,7 @@ def test_a_script_beside_the_spec_is_found_from_anywhere(
         encoding="utf-8",
     )
     monkeypatch.chdir(REPO)
-    spec = load_experiment(tmp_path / "exp.toml")
+    spec = load_experiment(tmp_path / "exp.toml", allow_commands=True)
     assert str(tmp_path / "den.py") in spec.externals[0].command
 
 
@@ -96,7 +107,7 @@ def test_a_script_beside_the_spec_is_found_from_anywhere(
 )
 def test_bad_entries_are_refused_with_one_line(externals: str, methods: str, message: str) -> None:
     with pytest.raises(ExperimentError) as err:
-        parse_experiment(_spec(externals, methods=methods), source="x.toml")
+        _parse(_spec(externals, methods=methods))
     text = str(err.value)
     assert message in text and "\n" not in text and text.startswith("x.toml: ")
 
@@ -104,7 +115,9 @@ def test_bad_entries_are_refused_with_one_line(externals: str, methods: str, mes
 def test_bad_entry_through_the_cli_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "data").mkdir()
     (tmp_path / "exp.toml").write_text(_spec_text(_entry("nlm"), '["nlm"]'), encoding="utf-8")
-    r = CliRunner().invoke(main, ["eval", "--experiment", str(tmp_path / "exp.toml"), "-o", "o"])
+    r = CliRunner().invoke(
+        main, ["eval", "--experiment", str(tmp_path / "exp.toml"), "-o", "o", "--allow-commands"]
+    )
     assert r.exit_code != 0 and "Traceback" not in r.output
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and "'nlm' is a built-in method" in lines[0], r.output
@@ -126,9 +139,10 @@ def test_an_experiment_runs_a_named_command_and_marks_its_times(tmp_path: Path) 
         encoding="utf-8",
     )
     out = tmp_path / "rep"
-    r = CliRunner().invoke(
-        main, ["eval", "--experiment", str(tmp_path / "exp.toml"), "-o", str(out)]
-    )
+    args = ["eval", "--experiment", str(tmp_path / "exp.toml"), "-o", str(out)]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code != 0 and "--allow-commands" in r.output and not out.exists()
+    r = CliRunner().invoke(main, [*args, "--allow-commands"])
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader((out / "results.csv").open(encoding="utf-8")))
     by = {(row["method"], row["spp"]): row for row in rows}

@@ -234,7 +234,7 @@ def test_an_experiment_judges_a_command(tmp_path: Path, monkeypatch: pytest.Monk
         "repetitions = 1\nwarmup = 0\nthreads = 1\n[scenes]\nfolder = 'data'\n",
         encoding="utf-8",
     )
-    r = _cli("eval", "--experiment", spec, "-o", tmp_path / "rep")
+    r = _cli("eval", "--experiment", spec, "-o", tmp_path / "rep", "--allow-commands")
     rows = list(csv.DictReader((tmp_path / "rep" / "results.csv").open(encoding="utf-8")))
     by = {row["base_method"][:22]: row for row in rows if row["method"] != "noisy"}
     assert set(by) == {"cmd-external_denoiser-"}, (r.output, rows)
