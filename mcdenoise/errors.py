@@ -19,3 +19,8 @@ class InputError(McdenoiseError, ValueError):
 
 class ExrError(McdenoiseError, OSError):
     """An EXR file cannot be read or written (missing, truncated, corrupt, too large, ...)."""
+
+
+class WriteError(McdenoiseError, OSError):
+    """A file cannot be written (full disk, I/O error, no permission); the message names the
+    file, and the file is as it was before the write."""

@@ -552,7 +552,11 @@ def write_estimate_report(
     every one saying that the values are estimated without a reference."""
     import csv
     import html
+    import io
     import json
+    import math
+
+    from mcdenoise.io.atomic import write_text_atomic
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -561,15 +565,20 @@ def write_estimate_report(
         "relMSE estimated without a reference from two independent half buffers "
         "(mcdenoise.eval.estimate); not measured"
     )
-    paths["json"].write_text(
-        json.dumps({"estimated": True, "note": note, "rows": list(rows)}, indent=1),
-        encoding="utf-8",
-    )
-    with paths["csv"].open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow([*ESTIMATE_COLUMNS, "estimated"])
-        for r in rows:
-            w.writerow([*(r.get(c) for c in ESTIMATE_COLUMNS), True])
+    # every file atomically (a full disk leaves no half report); JSON without NaN: a value
+    # that is not finite (a crafted header's) is null, like a value not estimated
+    finite = [
+        {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in r.items()}
+        for r in rows
+    ]
+    text = json.dumps({"estimated": True, "note": note, "rows": finite}, indent=1, allow_nan=False)
+    write_text_atomic(paths["json"], text)
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow([*ESTIMATE_COLUMNS, "estimated"])
+    for r in rows:
+        w.writerow([*(r.get(c) for c in ESTIMATE_COLUMNS), True])
+    write_text_atomic(paths["csv"], buf.getvalue())
     cells = "".join(
         "<tr>"
         + "".join(f"<td>{html.escape(_cell(r.get(c, '')))}</td>" for c in ESTIMATE_COLUMNS)
@@ -577,7 +586,8 @@ def write_estimate_report(
         for r in rows
     )
     head = "".join(f"<th>{c}</th>" for c in ESTIMATE_COLUMNS)
-    paths["html"].write_text(
+    write_text_atomic(
+        paths["html"],
         f"<!doctype html><meta charset='utf-8'><title>Estimated relMSE</title>"
         f"<h1>Estimated relMSE (no reference)</h1><p><b>{html.escape(note)}.</b> "
         "± is one standard error over 16×16 blocks. <i>normaliser</i>: what relMSE divides "
@@ -585,6 +595,5 @@ def write_estimate_report(
         "judged against the same image), else the output itself; either with its 5×5 local "
         "mean matched to the noisy input's.</p>"
         f"<table border='1'><tr>{head}</tr>{cells}</table>",
-        encoding="utf-8",
     )
     return paths

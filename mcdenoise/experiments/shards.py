@@ -110,7 +110,7 @@ def write_shard_record(
         "reused": len(reused),
         "refused": [list(k) for k in refused],
     }
-    write_text_atomic(path, json.dumps(record, indent=1) + "\n")
+    write_text_atomic(path, json.dumps(record, indent=1, allow_nan=False) + "\n")
     return path
 
 

@@ -27,8 +27,8 @@ Safety
       with a one-line message naming the file. A truncated or corrupt file never yields partial
       arrays: OpenImageIO's error state is checked after every read and the data discarded.
     * :func:`write_exr` (one part) and :func:`write_exr_parts` (several named parts, e.g. the
-      spp levels of one render) write atomically (temporary file in the target folder, then
-      ``os.replace``), so a crash leaves the old file or the complete new one.
+      spp levels of one render) write atomically (temporary file, fsync, checked down to its
+      last chunk, then ``os.replace``): a crash or a full disk leaves the old file or the new one.
     * float32 channels written with a lossless compression (``none``, ``rle``, ``zips``,
       ``zip``, ``piz``, ``b44``, ``b44a``) read back bit-exact; ``pxr24`` rounds float32 to
       24 bits and ``dwaa``/``dwab`` are lossy on channels named R, G, B, Y of any type. Half output clamps finite values beyond
@@ -49,7 +49,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from mcdenoise.errors import ExrError, InputError
+from mcdenoise.errors import ExrError, InputError, McdenoiseError
 from mcdenoise.io.atomic import atomic_path
 from mcdenoise.io.exr_messages import error_text as _error_text
 from mcdenoise.io.exr_messages import explain, readable_name
@@ -834,7 +834,7 @@ def _write_prepared(p: Path, prepared: Sequence[_Prepared]) -> None:
     """Write the prepared parts to ``p`` atomically (one part: a plain single-part file)."""
     oiio = _oiio()
     try:
-        with atomic_path(p) as tmp:
+        with atomic_path(p) as tmp:  # checked to the last chunk: OIIO may hide a failed flush
             out = oiio.ImageOutput.create("openexr")
             if out is None:
                 raise ExrError(f"{p}: OpenImageIO has no EXR writer: {_error_text(oiio)}")
@@ -863,6 +863,7 @@ def _write_prepared(p: Path, prepared: Sequence[_Prepared]) -> None:
     except OSError as e:
         if isinstance(e, ExrError):
             raise
-        raise ExrError(f"{p}: cannot write ({e.strerror or e})") from None
+        why = str(e) if isinstance(e, McdenoiseError) else f"{p}: cannot write ({e.strerror or e})"
+        raise ExrError(why) from None
     finally:
         _clear_global_error()

@@ -121,7 +121,7 @@ def merge_manifests(out: str | os.PathLike[str]) -> dict[str, Any] | None:
             "render_seconds": round(sum(record_seconds(r) for r in images), 3),
             "images": images,
         }
-        write_text_atomic(folder / MANIFEST, json.dumps(merged, indent=1) + "\n")
+        write_text_atomic(folder / MANIFEST, json.dumps(merged, indent=1, allow_nan=False) + "\n")
     return merged
 
 
@@ -157,4 +157,4 @@ def write_shard_manifest(
         "shard": {"index": i, "count": n},
         "images": sorted(records.values(), key=lambda r: (r.get("index", 0), r.get("id", ""))),
     }
-    write_text_atomic(out / name, json.dumps(data, indent=1) + "\n")
+    write_text_atomic(out / name, json.dumps(data, indent=1, allow_nan=False) + "\n")

@@ -19,6 +19,7 @@ which is kept (``checkpoints_kept`` newest files).
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from pathlib import Path
@@ -118,7 +119,7 @@ class RunFolder:
     def append_metrics(self, record: dict[str, Any]) -> None:
         """Append one JSON line to ``metrics.jsonl`` (rewritten atomically)."""
         old = self.metrics_path.read_text() if self.metrics_path.is_file() else ""
-        write_text_atomic(self.metrics_path, old + json.dumps(record, sort_keys=True) + "\n")
+        write_text_atomic(self.metrics_path, old + _metrics_line(record))
 
     def read_metrics(self) -> list[dict[str, Any]]:
         if not self.metrics_path.is_file():
@@ -130,9 +131,16 @@ class RunFolder:
     def truncate_metrics(self, step: int) -> None:
         """Drop metric lines after ``step`` (a resumed run recomputes them)."""
         kept = [r for r in self.read_metrics() if int(r.get("step", 0)) <= step]
-        write_text_atomic(
-            self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in kept)
-        )
+        write_text_atomic(self.metrics_path, "".join(_metrics_line(r) for r in kept))
+
+
+def _metrics_line(record: dict[str, Any]) -> str:
+    """One line of ``metrics.jsonl``: valid JSON, a loss that is not finite (a diverged or
+    empty validation, ``best_val_loss`` before the first one) written as ``null``."""
+    finite = {
+        k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in record.items()
+    }
+    return json.dumps(finite, sort_keys=True, allow_nan=False) + "\n"
 
 
 __all__ = ["CheckpointError", "RunFolder", "load_state", "save_state"]

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from mcdenoise.io.atomic import TMP_PREFIX, atomic_path, write_text_atomic
+from mcdenoise.io.atomic import TMP_PREFIX, atomic_path, host_tag, write_text_atomic
 
 
 def test_failed_write_keeps_old_file_and_leaves_no_temp(tmp_path):
@@ -29,11 +29,11 @@ def test_keyboard_interrupt_leaves_no_temp(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_temp_name_carries_pid_and_suffix(tmp_path):
+def test_temp_name_carries_pid_host_and_suffix(tmp_path):
     import os
 
-    with atomic_path(tmp_path / "img.exr") as tmp:
-        assert tmp.name.startswith(f"{TMP_PREFIX}{os.getpid()}-")
+    with atomic_path(tmp_path / "img.exr", verify=lambda _: None) as tmp:  # not a real EXR
+        assert tmp.name.startswith(f"{TMP_PREFIX}{os.getpid()}@{host_tag()}~")
         assert tmp.suffix == ".exr"
         tmp.write_bytes(b"1")
 
@@ -48,8 +48,8 @@ def test_temporaries_of_dead_writers_are_swept_live_ones_kept(tmp_path):
     dead_pid = int(dead.stdout)
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
-        stale = tmp_path / f"{TMP_PREFIX}{dead_pid}-abc.exr"
-        busy = tmp_path / f"{TMP_PREFIX}{live.pid}-def.exr"
+        stale = tmp_path / f"{TMP_PREFIX}{dead_pid}@{host_tag()}~abc.exr"
+        busy = tmp_path / f"{TMP_PREFIX}{live.pid}@{host_tag()}~def.exr"
         stale.write_bytes(b"partial")
         busy.write_bytes(b"in progress")
         write_text_atomic(tmp_path / "out.txt", "done")

@@ -377,7 +377,7 @@ def make_assets(out: Path = ROOT) -> list[Path]:
             "triangles": len(f),
         }
     with _atomic(out / "meshes" / "index.json") as tmp:
-        tmp.write_text(json.dumps(index, indent=1) + "\n", encoding="utf-8")
+        tmp.write_text(json.dumps(index, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     write_png(out / "textures" / "bricks.png", bricks(rng))
     write_png(out / "textures" / "wood.png", wood(rng))
     write_exr(out / "envmaps" / "studio.exr", studio_envmap())
