@@ -55,6 +55,12 @@ from tqdm import tqdm
     show_default=True,
 )
 @read_options
+@click.option(
+    "--include-outputs",
+    is_flag=True,
+    help="Also denoise the files of a folder that mcdenoise wrote (header mcdenoise:method); "
+    "by default a folder's earlier outputs are skipped, so a re-run never denoises them again.",
+)
 @threads_option()
 @click.option(
     "--half", is_flag=True, help="Write float16 (values beyond ±65504 are clamped and counted)."
@@ -98,6 +104,7 @@ def denoise(
     mapping,
     part,
     spp,
+    include_outputs,
     half,
     compression,
     as_json,
@@ -118,10 +125,15 @@ def denoise(
     and a re-run skips the frames already done (replaying the frames before the first missing
     one through the method, so its history is exact). A per-frame method takes a folder as
     separate images.
+
+    Nothing is written when an output would replace one of the inputs (e.g. -o naming the
+    input folder, which holds a.exr and a_nlm.exr): one line says which.
     """
     from mcdenoise import denoise as dn
 
-    read = dn.ReadOptions(profile=profile, mapping=mapping, part=part, spp=spp)
+    read = dn.ReadOptions(
+        profile=profile, mapping=mapping, part=part, spp=spp, include_outputs=include_outputs
+    )
     write = dn.WriteOptions(half=half, compression=compression, estimate_error=estimate_error)
     try:
         outcomes = dn.denoise_paths(

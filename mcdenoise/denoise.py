@@ -40,6 +40,8 @@ from mcdenoise.denoise_files import (
     make_output_folder,
     output_complete,
     plan_outputs,
+    plan_sequences,
+    refuse_overwriting_inputs,
     scan_sequence,
 )
 from mcdenoise.errors import InputError
@@ -671,7 +673,7 @@ def plan_jobs(
     """
     read = read or ReadOptions(part=part)
     part = read.part if part is None else part
-    files = collect_inputs(inputs)
+    files = collect_inputs(inputs, include_outputs=read.include_outputs)
     if model is not None and method == "auto":
         from mcdenoise.models.weights import model_method
 
@@ -698,10 +700,24 @@ def plan_jobs(
     else:
         for m in chosen:
             if m.temporal:
-                jobs += _plan_sequences(inputs, output, m, read, part, skip=method == "all")
+                jobs += plan_sequences(inputs, output, m, read, part, skip=method == "all")
                 continue
             outs = plan_outputs(files, output, m.name, part=part)
             jobs += [DenoiseJob(src, dst, m) for src, dst in zip(files, outs)]
+    pairs = [
+        pair
+        for j in jobs
+        for pair in (
+            zip(j.inputs, j.outputs) if isinstance(j, SequenceJob) else [(j.input, j.output)]
+        )
+    ]
+    if method == "auto":  # any method may be chosen: every output name it could give
+        pairs = [
+            (f, o)
+            for m in methods()
+            for f, o in zip(files, plan_outputs(files, output, m.name, part=part))
+        ]
+    refuse_overwriting_inputs(files, [(f, o) for f, o in pairs if o is not None])
     return DenoisePlan(
         jobs,
         overrides,
@@ -709,38 +725,6 @@ def plan_jobs(
         part,
         skip_missing=method == "all",
     )
-
-
-def _plan_sequences(
-    inputs: Sequence[str | os.PathLike[str]],
-    output: str | os.PathLike[str] | None,
-    m: Method,
-    read: ReadOptions,
-    part: str | None,
-    *,
-    skip: bool,
-) -> list[SequenceJob]:
-    """The :class:`SequenceJob` of the temporal method ``m`` for each sequence of
-    ``inputs`` (:func:`collect_sequences`), checked by :func:`scan_sequence`; with ``skip``
-    (``--method all``) a sequence ``m`` refuses is recorded as skipped, with the reason."""
-    jobs: list[SequenceJob] = []
-    for source, files in collect_sequences(inputs):
-        try:
-            frames = scan_sequence(source, files, m, read)
-        except InputError as err:
-            if not skip:
-                raise
-            jobs.append(SequenceJob(source, tuple(files), (), m, skipped=str(err)))
-            continue
-        paths = [f.path for f in frames]
-        outs = plan_outputs(paths, output, m.name, part=part)
-        jobs.append(
-            SequenceJob(source, tuple(paths), tuple(outs), m, tuple(f.number for f in frames))
-        )
-    outs = [o for j in jobs for o in j.outputs]
-    if len(set(outs)) != len(outs):
-        raise InputError("two inputs would write the same output name; use separate folders")
-    return jobs
 
 
 def run_jobs(

@@ -6,6 +6,9 @@ names, never runs a method.
 
 Inputs
     :func:`collect_inputs` expands files and folders (``*.exr``, not recursive) into files;
+    a folder's files that this tool wrote (header ``mcdenoise:method``, read without a pixel:
+    :func:`written_by_mcdenoise`) are left out unless asked for (``--include-outputs``), so a
+    re-run on a folder never denoises its own outputs again;
     :func:`collect_sequences` groups them for a temporal method: each folder one sequence,
     the files given one by one one more.
 Sequences
@@ -15,11 +18,13 @@ Sequences
     written; :func:`output_complete` says whether an output is already done (resume).
 Outputs
     :func:`plan_outputs` names them, :func:`check_output_folder` and :func:`check_output_path`
-    check where they go.
+    check where they go, :func:`refuse_overwriting_inputs` refuses a batch whose outputs
+    would replace any of its inputs (before anything is written).
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -47,18 +52,23 @@ __all__ = [
     "make_output_folder",
     "output_complete",
     "plan_outputs",
+    "plan_sequences",
+    "refuse_overwriting_inputs",
     "scan_sequence",
+    "written_by_mcdenoise",
 ]
 
 
 @dataclass
 class ReadOptions:
-    """How input files are read (see :func:`mcdenoise.io.load_buffers`)."""
+    """How input files are read (see :func:`mcdenoise.io.load_buffers`); ``include_outputs``:
+    a folder's files written by this tool are inputs too (:func:`collect_inputs`)."""
 
     profile: str = "auto"
     mapping: str | None = None
     part: str | None = None
     spp: int | None = None
+    include_outputs: bool = False
 
 
 @dataclass
@@ -144,8 +154,26 @@ def make_output_folder(
     return p
 
 
-def collect_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
-    """Expand files and folders (``*.exr``, not recursive, sorted) into a list of EXR files."""
+def written_by_mcdenoise(path: str | os.PathLike[str]) -> bool:
+    """Whether the EXR ``path`` is an output of ``mcdenoise denoise`` (or of an experiment):
+    its header has ``mcdenoise:method``. Only header bytes are read; a file whose header
+    cannot be read is not an output (reading it as an input then says what is wrong)."""
+    from mcdenoise.io.exr_layout import header_strings
+
+    try:
+        return any("mcdenoise:method" in part for part in header_strings(path))
+    except McdenoiseError:
+        return False
+
+
+def collect_inputs(
+    paths: Sequence[str | os.PathLike[str]], *, include_outputs: bool = False
+) -> list[Path]:
+    """Expand files and folders (``*.exr``, not recursive, sorted) into a list of EXR files.
+
+    A folder's files written by this tool (:func:`written_by_mcdenoise`) are left out unless
+    ``include_outputs``; files named one by one are always inputs.
+    """
     from mcdenoise.io.atomic import TMP_PREFIX
 
     files: list[Path] = []
@@ -158,6 +186,14 @@ def collect_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
             )
             if not found:
                 raise InputError(f"folder {p} holds no .exr files{_subfolder_hint(p)}")
+            if not include_outputs:
+                kept = [q for q in found if not written_by_mcdenoise(q)]
+                if not kept:
+                    raise InputError(
+                        f"folder {p} holds only outputs of mcdenoise ({len(found)} file(s) with "
+                        "the header mcdenoise:method); --include-outputs denoises them too"
+                    )
+                found = kept
             files.extend(found)
         elif p.exists():
             files.append(p)
@@ -225,6 +261,37 @@ def plan_outputs(
     if len(set(outs)) != len(outs):
         raise InputError("two inputs would write the same output name; use separate folders")
     return outs
+
+
+def _entry(path: Path) -> str:
+    """The folder entry ``path`` names: its folder resolved, its own name kept (a symbolic
+    link is the entry a write would replace, not the file it points to)."""
+    return os.path.join(os.path.realpath(path.parent if str(path.parent) else "."), path.name)
+
+
+def refuse_overwriting_inputs(inputs: Sequence[Path], planned: Sequence[tuple[Path, Path]]) -> None:
+    """Raise :class:`InputError` (one line) when a planned ``(input, output)`` of the batch
+    would replace one of its ``inputs``: the same folder entry, or an existing output that is
+    the same file (``denoise coll -o coll -m nlm`` where ``coll`` holds ``a.exr`` and
+    ``a_nlm.exr``). Called when the batch is planned, before anything is read or written.
+    """
+    by_entry = {_entry(p): p for p in inputs}
+    by_inode: dict[tuple[int, int], Path] = {}
+    for p in inputs:
+        with contextlib.suppress(OSError):
+            st = p.stat()
+            by_inode[(st.st_dev, st.st_ino)] = p
+    for src, out in planned:
+        hit = by_entry.get(_entry(out))
+        if hit is None and by_inode:
+            with contextlib.suppress(OSError):
+                st = out.stat()
+                hit = by_inode.get((st.st_dev, st.st_ino))
+        if hit is not None:
+            raise InputError(
+                f"{hit} is an input of this batch and the output of {src} would overwrite it; "
+                "nothing was written: write the outputs into another folder (-o)"
+            )
 
 
 # --- sequences: the frames of a folder for a temporal method --------------------------------
@@ -336,16 +403,18 @@ class SequenceJob:
     skipped: str | None = None
 
 
-def collect_sequences(paths: Sequence[str | os.PathLike[str]]) -> list[tuple[Path, list[Path]]]:
+def collect_sequences(
+    paths: Sequence[str | os.PathLike[str]], *, include_outputs: bool = False
+) -> list[tuple[Path, list[Path]]]:
     """Group the inputs into sequences: each folder is one (its ``*.exr`` as in
     :func:`collect_inputs`; ``ref/`` and other subfolders are not read), and the files given
     one by one are one more, together. Returns ``(source, files)`` per sequence."""
-    collect_inputs(paths)  # the same checks: existing inputs, no file twice
+    collect_inputs(paths, include_outputs=include_outputs)  # the same checks
     groups: list[tuple[Path, list[Path]]] = []
     loose: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            groups.append((p, collect_inputs([p])))
+            groups.append((p, collect_inputs([p], include_outputs=include_outputs)))
         else:
             loose.append(p)
     if loose:
@@ -454,3 +523,35 @@ def output_complete(
         and attrs.get("mcdenoise:source") == str(source.resolve())
         and attrs.get("mcdenoise:source_part") == (None if part is None else str(part))
     )
+
+
+def plan_sequences(
+    inputs: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str] | None,
+    m: Method,
+    read: ReadOptions,
+    part: str | None,
+    *,
+    skip: bool,
+) -> list[SequenceJob]:
+    """The :class:`SequenceJob` of the temporal method ``m`` for each sequence of
+    ``inputs`` (:func:`collect_sequences`), checked by :func:`scan_sequence`; with ``skip``
+    (``--method all``) a sequence ``m`` refuses is recorded as skipped, with the reason."""
+    jobs: list[SequenceJob] = []
+    for source, files in collect_sequences(inputs, include_outputs=read.include_outputs):
+        try:
+            frames = scan_sequence(source, files, m, read)
+        except InputError as err:
+            if not skip:
+                raise
+            jobs.append(SequenceJob(source, tuple(files), (), m, skipped=str(err)))
+            continue
+        paths = [f.path for f in frames]
+        outs = plan_outputs(paths, output, m.name, part=part)
+        jobs.append(
+            SequenceJob(source, tuple(paths), tuple(outs), m, tuple(f.number for f in frames))
+        )
+    outs = [o for j in jobs for o in j.outputs]
+    if len(set(outs)) != len(outs):
+        raise InputError("two inputs would write the same output name; use separate folders")
+    return jobs

@@ -34,7 +34,7 @@ _TILED, _LONG_NAMES, _DEEP, _MULTIPART = 0x200, 0x400, 0x800, 0x1000
 #: Scan lines per chunk of each compression code (none, rle, zips, zip, piz, pxr24, b44, b44a,
 #: dwaa, dwab).
 _LINES_PER_CHUNK = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 32, 9: 256}
-_READ = 1 << 16
+_READ = 4096  # bytes fetched at a time: most headers fit in one read
 
 
 @dataclass(frozen=True)
