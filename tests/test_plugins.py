@@ -49,6 +49,7 @@ def plugins(monkeypatch: pytest.MonkeyPatch):
     def install(*eps: _EntryPoint) -> None:
         monkeypatch.setattr(registry, "_REGISTRY", {})
         monkeypatch.setattr(registry, "_ALIASES", {})
+        monkeypatch.setattr(registry, "_PLUGINS", set())
         monkeypatch.setattr(registry, "_builtins", {"state": "no"})
         monkeypatch.setattr(registry, "_entry_points", lambda: list(eps))
 
