@@ -422,14 +422,20 @@ def _method_name(ctx: _Ctx, key: str, value: Any) -> str:
 
 
 def _check_params(ctx: _Ctx, key: str, method: str, params: Mapping[str, Any]) -> None:
+    import dataclasses
+
     from mcdenoise.denoise import get_method
+    from mcdenoise.methods.external import CommandParams
 
     if method == NOISY:
         if params:
             raise ctx.error(key, "'noisy' (plain rendering) has no parameters")
         return
     try:
-        get_method(method).resolve_params(params)
+        m = get_method(method)
+        if isinstance(m.defaults, CommandParams):  # checked without running the program
+            m = dataclasses.replace(m, defaults=m.defaults.unasked())
+        m.resolve_params(params)
     except McdenoiseError as err:
         raise ctx.error(key, str(err)) from None
 

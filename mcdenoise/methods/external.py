@@ -535,6 +535,11 @@ class CommandParams(Mapping[str, Any]):
             self._version = program_version(tuple(argv)) if argv else ""
         return self._version
 
+    def unasked(self) -> dict[str, Any]:
+        """The parameters with ``version`` empty, without asking the program: for checking
+        overrides (an experiment spec's ``[params.NAME]``) before anything may run."""
+        return {"command": self.template.text, "version": "", "timeout": DEFAULT_TIMEOUT}
+
     def __getitem__(self, key: str) -> Any:
         if key == "command":
             return self.template.text

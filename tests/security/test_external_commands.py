@@ -200,6 +200,12 @@ def _spec_with_commands(tmp_path: Path) -> tuple[Path, Path, Path]:
             [[external]]
             name = "mine"
             command = "{Path(PY).as_posix()} marker_prog.py {{color}} {{output:pfm}}"
+            [params.mine]
+            timeout = 30
+            [[sweep]]
+            method = "mine"
+            param = "timeout"
+            values = [5, 9]
             [scenes]
             random = 1
             """
@@ -239,7 +245,8 @@ def test_a_spec_that_runs_programs_loads_with_allow_commands_and_still_runs_noth
     loaded = load_experiment(spec, allow_commands=True)
     assert [e.name for e in loaded.externals] == ["mine"] and len(loaded.methods) == 2
     assert str(prog) in loaded.externals[0].command
-    assert not marker.exists()  # parsed and registered: no --version probe
+    assert loaded.params["mine"] == {"timeout": 30} and len(loaded.sweeps) == 1
+    assert not marker.exists()  # parsed, registered, params checked: no --version probe
 
 
 def test_allow_commands_is_refused_without_an_experiment(tmp_path: Path) -> None:
