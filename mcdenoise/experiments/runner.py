@@ -65,6 +65,7 @@ from mcdenoise.experiments.entries import MethodEntry, plan_methods, run_device
 from mcdenoise.experiments.report import write_experiment_report
 from mcdenoise.experiments.shards import (
     check_rendered,
+    folder_lock,
     host_name,
     missing_message,
     shard_units,
@@ -435,13 +436,15 @@ def run_units(
     device: Any,
     progress: bool | str = False,
     summary: RunSummary | None = None,
+    still_held: Callable[[], None] | None = None,
 ) -> dict[tuple[str, int, str], dict[str, Any]]:
     """Run the units that have no valid record yet; return every unit's record by key.
 
     Each record is written atomically as soon as its unit finishes, so an exception or
     Ctrl-C loses at most the unit in progress. ``progress``: units done / total, the current
     scene, level and method, and the time left, on stderr
-    (:func:`mcdenoise.progress.progress_bar`).
+    (:func:`mcdenoise.progress.progress_bar`). ``still_held``: called before each unit;
+    raises when this run's folder lock was taken over (:func:`~.shards.folder_lock`).
     """
     from mcdenoise.progress import progress_bar
 
@@ -464,6 +467,8 @@ def run_units(
         progress=progress if todo else False,
     ) as bar:
         for unit in todo:
+            if still_held is not None:
+                still_held()
             scene, level = unit.scene, unit.level
             ref_key = f"ref:{scene.id}"
             if ref_key not in loaded:
@@ -575,13 +580,10 @@ def run_experiment(
     Raises:
         ExperimentError, SpecError, RenderError, InputError: bad spec, folder or settings;
             with ``merge``, a unit without a finished record.
+        LockError: another live process runs in ``out`` (a plain run or merge, beside
+            anything else; a shard, beside the same shard or a plain run), see
+            :func:`~mcdenoise.experiments.shards.folder_lock`; one line naming it.
     """
-    from mcdenoise.denoise import resolve_device
-    from mcdenoise.eval.metrics import resolve_metrics
-    from mcdenoise.eval.temporal import resolve_sequence_metrics
-    from mcdenoise.experiments.dataset import folder_frames
-    from mcdenoise.progress import progress_bar
-
     if shard is not None and merge:
         raise ExperimentError("a shard runs its share; --merge builds the report: not both")
     root = Path(out)
@@ -591,6 +593,27 @@ def run_experiment(
         raise ExperimentError(
             f"cannot create the experiment folder {root}: {err.strerror or err}"
         ) from None
+    with folder_lock(root, shard) as lock:  # one run per folder, or one process per shard
+        return _run_locked(spec, root, lock.check, progress, metrics, shard, merge)
+
+
+def _run_locked(
+    spec: ExperimentSpec,
+    root: Path,
+    still_held: Callable[[], None],
+    progress: bool | str,
+    metrics: Sequence[str] | None,
+    shard: tuple[int, int] | None,
+    merge: bool,
+) -> RunSummary:
+    """:func:`run_experiment` once its folder lock is held (``still_held`` raises when it
+    was taken over)."""
+    from mcdenoise.denoise import resolve_device
+    from mcdenoise.eval.metrics import resolve_metrics
+    from mcdenoise.eval.temporal import resolve_sequence_metrics
+    from mcdenoise.experiments.dataset import folder_frames
+    from mcdenoise.progress import progress_bar
+
     sequences = (spec.frames if spec.folder is None else folder_frames(spec.folder)) is not None
     wanted = metrics if metrics is not None else spec.metrics
     names = resolve_sequence_metrics(wanted) if sequences else resolve_metrics(wanted)
@@ -643,7 +666,8 @@ def run_experiment(
     at_start = machine_info()
     if shard is not None:
         mine = shard_units(units, shard, scene_index=index if by_scene else None)
-        _run_shard(mine, root, settings, device, progress, summary, shard, at_start, spec)
+        args = (mine, root, settings, device, progress, summary, shard, at_start, spec)
+        _run_shard(*args, still_held=still_held)
         return summary
     if merge:
         records = collect_units(units, root, settings)
@@ -651,7 +675,13 @@ def run_experiment(
     else:
         with torch_threads(spec.threads):
             records = run_units(
-                units, root, settings, device=device, progress=progress, summary=summary
+                units,
+                root,
+                settings,
+                device=device,
+                progress=progress,
+                summary=summary,
+                still_held=still_held,
             )
     with progress_bar(total=2, desc="report", unit="step", progress=progress) as bar:
         bar.set_postfix_str("statistics")
@@ -685,13 +715,22 @@ def _run_shard(
     shard: tuple[int, int],
     machine: Mapping[str, Any],
     spec: ExperimentSpec,
+    still_held: Callable[[], None] | None = None,
 ) -> None:
     """Run one shard's units, recording the shard before (started) and after (finished)."""
     keys = [u.key for u in mine]
     started = _now()
     write_shard_record(root, shard, units=keys, started=started, finished=False, machine=machine)
     with torch_threads(spec.threads):
-        records = run_units(mine, root, settings, device=device, progress=progress, summary=summary)
+        records = run_units(
+            mine,
+            root,
+            settings,
+            device=device,
+            progress=progress,
+            summary=summary,
+            still_held=still_held,
+        )
     summary.shard_units = len(mine)
     refused = [k for k in keys if records[k].get("error")]
     write_shard_record(

@@ -19,6 +19,14 @@ the folder holds, so shards started at different times agree:
   ``mcdenoise render --shard``: every shard gets every method and level, so the shares take
   about equal time.
 
+Who may run in ``DIR`` at once (:func:`folder_lock`): a plain run (or a merge) holds
+``DIR/work/experiment.lock``, shard ``I/N`` holds ``DIR/work/shards/shard-I-of-N.lock``
+(:class:`~mcdenoise.io.lockfile.LockFile`: host, PID, a heartbeat; a dead or silent holder's
+lock is taken over). Shards on several hosts therefore share the folder, while a second
+process for the same shard, a plain run beside running shards, or two plain runs are refused
+in one line naming the holder: two runs would run the same units twice and time them against
+each other.
+
 Every unit record is written into ``DIR/work`` as in a single run, with the host that ran it
 (``host``, ``cpu``), and every shard writes ``DIR/work/shards/shard-I-of-N.json`` (host,
 start and end, units run, reused and refused), so the merge can say which shards have not
@@ -31,16 +39,18 @@ report.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import json
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from mcdenoise.experiments.spec import ExperimentError
 from mcdenoise.io.atomic import write_text_atomic
+from mcdenoise.io.lockfile import LockError, LockFile, live_holder
 
 #: Folder of the shard records, under ``DIR/work``.
 SHARDS = "shards"
@@ -77,6 +87,42 @@ def shard_units(
 def shard_path(out: Path, shard: tuple[int, int]) -> Path:
     """``DIR/work/shards/shard-<i>-of-<n>.json``."""
     return out / "work" / SHARDS / f"shard-{shard[0]}-of-{shard[1]}.json"
+
+
+def lock_path(out: Path, shard: tuple[int, int] | None) -> Path:
+    """The lock file of a run: ``DIR/work/experiment.lock``, or a shard's beside its record."""
+    if shard is None:
+        return out / "work" / "experiment.lock"
+    return shard_path(out, shard).with_suffix(".lock")
+
+
+@contextlib.contextmanager
+def folder_lock(out: Path, shard: tuple[int, int] | None) -> Iterator[LockFile]:
+    """Hold the lock of a plain run or merge (``shard=None``) or of shard ``shard`` of the
+    experiment folder ``out`` for the block (see the module docstring).
+
+    Raises:
+        LockError: another live process holds this lock, or holds a lock this one excludes
+            (a plain run and any shard); one line naming it.
+    """
+    what = "an experiment run" if shard is None else f"shard {shard[0]}/{shard[1]}"
+    with LockFile(lock_path(out, shard), what) as lock:
+        # taken first, checked second: two that start together both refuse, never both run
+        others = [lock_path(out, None)] if shard is not None else []
+        if shard is None and (out / "work" / SHARDS).is_dir():
+            others = sorted((out / "work" / SHARDS).glob("shard-*-of-*.lock"))
+        for other in others:
+            holder = live_holder(other)
+            if holder is not None:
+                raise LockError(
+                    f"{out} is in use: {holder.describe()} holds {other}; "
+                    + (
+                        "run the shards, then --merge, once every shard has finished"
+                        if shard is None
+                        else "a plain run and shards cannot share the folder at once"
+                    )
+                )
+        yield lock
 
 
 def _now() -> str:
