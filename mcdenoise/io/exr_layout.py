@@ -199,7 +199,12 @@ def check_complete(path: str | os.PathLike[str]) -> None:
                 raise _cut(p, size, end)
     except ExrError:
         raise
-    except (OSError, EOFError, ValueError, struct.error) as err:
+    except EOFError:
+        raise ExrError(
+            f"{p}: the file written is incomplete ({size} bytes; it ends before its offset "
+            "table does)"
+        ) from None
+    except (OSError, ValueError, struct.error) as err:
         raise ExrError(f"{p}: the file written is unreadable ({_why(err)})") from None
 
 
