@@ -51,6 +51,7 @@ def test_register_replaces_a_builtin_and_a_stand_in_survives_loading(
 ) -> None:
     registry.methods()
     monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    monkeypatch.setattr(registry, "_ALIASES", dict(registry._ALIASES))  # "mine" goes with it
     mine = Method("nlm", "my nlm", ("color",), (), {}, _color, priority=99)
     registry.register(mine, aliases=("mine",))
     assert registry.get_method("nlm") is mine and registry.get_method("mine") is mine

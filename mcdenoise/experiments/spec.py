@@ -104,7 +104,7 @@ registered as a method named ``name`` through :func:`mcdenoise.registry.add_comm
 ``{albedo}``, ``{normal}``); the program, an interpreter's script (``python my.py``) and
 every token holding a path separator that name a file or folder existing relative to the
 spec's folder are made absolute (``python my.py ...`` beside the spec works from any current
-folder; :func:`_spec_relative`). ``timeout`` becomes the method's ``timeout`` parameter
+folder; :func:`~mcdenoise.experiments.commands.spec_relative`). ``timeout`` becomes the method's ``timeout`` parameter
 (giving it in ``[params.NAME]`` too is an error). Like ``cmd:...`` methods on the command
 line, external methods are never part of ``methods = "all"``: a spec that declares one lists
 it in ``methods`` (or sweeps it), and ``"all"`` with an ``[[external]]`` that nothing names
@@ -117,7 +117,7 @@ A spec that runs programs (an ``[[external]]`` entry, or a ``cmd:...`` method in
 ``[params]`` or a ``[[sweep]]``) is code: someone else's spec could run anything. Unless
 ``allow_commands`` is given (``mcdenoise eval --experiment SPEC --allow-commands``) it is
 refused before anything is registered or run, in one line listing every command line it
-would run (:func:`spec_commands`). Parsing runs no program either way: a command's
+would run (:func:`~mcdenoise.experiments.commands.spec_commands`). Parsing runs no program either way: a command's
 ``--version`` is asked only when its parameters are resolved for a run
 (:class:`mcdenoise.methods.external.CommandParams`).
 
@@ -139,6 +139,7 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.errors import McdenoiseError
+from mcdenoise.experiments.commands import spec_commands, spec_relative
 
 #: The label of plain Monte Carlo rendering (no denoiser; denoise time 0).
 NOISY = "noisy"
@@ -700,50 +701,6 @@ def parse_experiment(
     )
 
 
-def spec_commands(
-    top: Mapping[str, Any], *, base: str | os.PathLike[str] | None = None
-) -> list[tuple[str, str]]:
-    """Every external command the spec ``top`` (a parsed TOML table) would run, as
-    ``(where, command line)``: each ``[[external]]`` command (as it would run: paths beside
-    the spec made absolute, :func:`_spec_relative`) and each ``cmd:...`` method, or a command
-    method built before in this process, named in ``methods``, ``[params]`` or a
-    ``[[sweep]]``. Looks only: registers and runs nothing, and skips what is malformed
-    (the parser says what is wrong with it)."""
-    from mcdenoise.registry import command_template
-
-    ctx = _Ctx("<spec>", None if base is None else Path(base))
-    out: list[tuple[str, str]] = []
-
-    def named(where: str, name: Any) -> None:
-        text = command_template(name) if isinstance(name, str) else None
-        if text is not None:
-            out.append((where, text))
-
-    ext = top.get("external", [])
-    for i, entry in enumerate([ext] if isinstance(ext, Mapping) else ext):
-        if isinstance(entry, Mapping) and isinstance(entry.get("command"), str):
-            name = entry.get("name")
-            where = f"external[{i}]" + (f" {name!r}" if isinstance(name, str) else "")
-            out.append((where, _spec_relative(ctx, entry["command"].strip())))
-    raw = top.get("methods")
-    if isinstance(raw, Sequence) and not isinstance(raw, str):
-        for i, name in enumerate(raw):
-            named(f"methods[{i}]", name)
-    params = top.get("params")
-    if isinstance(params, Mapping):
-        for name in params:
-            named(f"params.{name}", name)
-    sweeps = top.get("sweep")
-    if isinstance(sweeps, Sequence) and not isinstance(sweeps, str):
-        for i, sw in enumerate(sweeps):
-            if isinstance(sw, Mapping):
-                named(f"sweep[{i}].method", sw.get("method"))
-    first: dict[str, str] = {}  # a command named twice is listed once
-    for where, cmd in out:
-        first.setdefault(cmd, where)
-    return [(where, cmd) for cmd, where in first.items()]
-
-
 def _externals(ctx: _Ctx, value: Any) -> tuple[External, ...]:
     """``[[external]]`` entries, checked and registered (:func:`mcdenoise.registry.add_command`)
     under their names, so the rest of the spec can name them."""
@@ -768,7 +725,7 @@ def _externals(ctx: _Ctx, value: Any) -> tuple[External, ...]:
             raise ctx.error(f"{key}.name", f"{name!r}: a name may not start with 'cmd:' or hold []")
         if any(e.name == name for e in out):
             raise ctx.error(f"{key}.name", f"{name!r} names two [[external]] entries")
-        command = _spec_relative(ctx, _str(ctx, f"{key}.command", entry["command"]))
+        command = spec_relative(ctx.base, _str(ctx, f"{key}.command", entry["command"]))
         timeout = entry.get("timeout")
         if timeout is not None and (
             isinstance(timeout, bool)
@@ -783,39 +740,6 @@ def _externals(ctx: _Ctx, value: Any) -> tuple[External, ...]:
             raise ctx.error(key, " ".join(str(err).split())) from None
         out.append(External(name, command, None if timeout is None else float(timeout)))
     return tuple(out)
-
-
-def _spec_relative(ctx: _Ctx, command: str) -> str:
-    """``command`` with the tokens that name a path, and exist relative to the spec's
-    folder, made absolute, so a script beside the spec runs whatever folder mcdenoise is
-    started in: the program when it holds a path separator (``./den``; a bare name is looked
-    up on PATH), an interpreter's script (``python my.py``) and every other token holding a
-    separator (``models/w.pt``). A plain word stays as written even when a file of that
-    name lies beside the spec, as on the command line
-    (:func:`mcdenoise.methods.external._absolute_args`); tokens with placeholders or options
-    are left alone."""
-    import shlex
-
-    from mcdenoise.methods.external import is_interpreter
-
-    if ctx.base is None:
-        return command
-    try:
-        tokens = shlex.split(command)
-    except ValueError:
-        return command  # the template parser names the problem
-    changed = False
-    for i, token in enumerate(tokens):
-        if not token or token.startswith("-") or "{" in token or Path(token).is_absolute():
-            continue
-        script = i == 1 and is_interpreter(tokens[0])
-        if not (script or os.sep in token or "/" in token):
-            continue
-        p = ctx.base / token
-        if p.exists():
-            tokens[i] = str(p.resolve())
-            changed = True
-    return shlex.join(tokens) if changed else command
 
 
 def _metric_names(ctx: _Ctx, raw: Sequence[str], frames: int | None) -> tuple[str, ...]:
