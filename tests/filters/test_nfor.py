@@ -114,7 +114,9 @@ def test_nl_means_weights_come_from_the_guide() -> None:
     var = torch.full((1, 1, 12, 12), 1e-4)
     edge = nl_means(img, img, var, patch_radius=1, search_radius=3, k=0.5)
     flat = nl_means(img, torch.zeros_like(img), var, patch_radius=1, search_radius=3, k=0.5)
-    assert torch.allclose(edge, img, atol=1e-6)
+    # to float32 rounding of a weighted mean of 7 x 7 taps on any CPU (49 * eps32, Higham's
+    # reordering bound); the flat guide mixes the sides by 0.2 and more
+    assert torch.allclose(edge, img, atol=49 * torch.finfo(torch.float32).eps)
     assert float(flat[0, 0, :, 5].mean()) > 0.2
 
 
