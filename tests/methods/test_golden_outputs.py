@@ -25,8 +25,9 @@ that sets their bandwidths), a value passes when::
 Measured (scaled error ``|got - want| / (eps32 * (|want| + mean |want|))``, worst over all
 samples and methods): the AMD EPYC AVX-512 machine of issue 33, whose ``kalantari-xbf``
 differed by up to 4.6e-6 and failed the old ``atol = rtol = 1e-6``, is at 106 (17× below the
-tolerance of 1764); torch's scalar kernels (``ATEN_CPU_CAPABILITY=default``) against its
-AVX-512 ones on one machine, at 226 (7.8×). A real change is far above it: one parameter
+tolerance of 1764); torch's scalar kernels (``ATEN_CPU_CAPABILITY=default``, with
+``DNNL_MAX_CPU_ISA=SSE41`` and ``MKL_ENABLE_INSTRUCTIONS=SSE4_2`` too) against its AVX-512
+ones on one machine, at 226 (7.8×). A real change is far above it: one parameter
 nudged by 1 % (``nlm`` k, ``cross-bilateral`` spatial or colour bandwidth, the learned
 methods' predicted bandwidth, ``kpcn``'s exposure) gives 3632 to 94505 on every sample,
 i.e. 2× to 54× the tolerance (``test_one_percent_nudge_fails``).
