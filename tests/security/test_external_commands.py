@@ -40,6 +40,7 @@ from mcdenoise.methods.external import (
     FOLDER_PREFIX,
     STALE_SECONDS,
     _absolute_args,
+    _setpriv,
     command_method,
     sweep_stale_folders,
 )
@@ -330,13 +331,16 @@ with open(sys.argv[1], "w") as f:
 time.sleep(120)
 """
 
-#: The parent: mcdenoise running the sleeper as a command (what ``denoise -m cmd:...`` does).
+#: The parent: mcdenoise running the sleeper as a command (what ``denoise -m cmd:...`` does);
+#: ``preexec``: without ``setpriv``, so the request is made before ``exec`` instead.
 PARENT = """\
 import sys, torch
 from mcdenoise.io import FeatureBuffers
-from mcdenoise.methods.external import parse_template, run_command
-template = parse_template(sys.argv[1])
-run_command(template, FeatureBuffers({"color": torch.ones(3, 4, 4)}), timeout=300)
+from mcdenoise.methods import external
+if sys.argv[2] == "preexec":
+    external._setpriv = lambda: ()
+template = external.parse_template(sys.argv[1])
+external.run_command(template, FeatureBuffers({"color": torch.ones(3, 4, 4)}), timeout=300)
 """
 
 
@@ -350,12 +354,15 @@ def _running(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
-def test_a_command_dies_with_mcdenoise_and_its_folder_is_swept(tmp_path: Path) -> None:
+@pytest.mark.parametrize("how", ["setpriv", "preexec"])
+def test_a_command_dies_with_mcdenoise_and_its_folder_is_swept(tmp_path: Path, how: str) -> None:
+    if how == "setpriv" and not _setpriv():
+        pytest.skip("no setpriv --pdeathsig here (util-linux 2.33+)")
     sleeper, pid_file, temp = tmp_path / "sleeper.py", tmp_path / "child.pid", tmp_path / "tmp"
     sleeper.write_text(SLEEPER, encoding="utf-8")
     temp.mkdir()
     parent = subprocess.Popen(
-        [PY, "-c", PARENT, f"{PY} {sleeper} {pid_file} {{output}}"],
+        [PY, "-c", PARENT, f"{PY} {sleeper} {pid_file} {{output}}", how],
         env={**os.environ, "TMPDIR": str(temp)},
     )
     try:
