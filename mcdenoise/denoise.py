@@ -54,6 +54,7 @@ from mcdenoise.registry import (
     best_method,
     choose_method,
     get_method,
+    header_method,
     methods,
     params_from_strings,
     register,
@@ -677,7 +678,8 @@ def plan_jobs(
     if model is not None and method == "auto":
         from mcdenoise.models.weights import model_method
 
-        method = model_method(model)  # the model file says which method
+        # the model file says which method: one of the table, never a command
+        method = header_method(model_method(model), str(model), what="its model card").name
     chosen = parse_methods(method)
     overrides = dict(params or {})
     if model is not None:

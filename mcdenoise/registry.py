@@ -240,26 +240,25 @@ def command_template(name: str) -> str | None:
     return None if known is None else str(known.defaults["command"])
 
 
-def header_method(name: str, where: str) -> Method:
-    """The method an output's header names (``mcdenoise:method``) in the file ``where``:
-    a method of the table (a built-in, an installed plugin) or one of its aliases, and
-    nothing else. A file may come from anyone, so its header never builds or finds an
-    external command (that would run a program named by the file) and never names a method
-    that is not installed here.
+def header_method(name: str, where: str, *, what: str = "its header") -> Method:
+    """The method a file names: an output's header (``mcdenoise:method``), a model file's
+    card (``what``), in the file ``where``. Only a method of the table (a built-in, an
+    installed plugin) or one of its aliases: a file may come from anyone, so the name it
+    holds never builds or finds an external command (that would run a program the file
+    chose) and never names a method that is not installed here.
 
     Raises:
         InputError: one line naming ``where``: a command, or a method not in the table.
     """
     if is_command(name):
         raise InputError(
-            f"{where}: its header names the external command {name.strip()!r}: not run (a "
-            "file's header never runs a program; judge it with --ref, or denoise again with "
-            "--method 'cmd:...')"
+            f"{where}: {what} names the external command {name.strip()!r}: not run (a file "
+            "never makes mcdenoise run a program; run it yourself with --method 'cmd:...')"
         )
     _ensure_builtins()
     key = _ALIASES.get(name, name)
     if key not in _REGISTRY:
-        raise InputError(f"{where}: its header names method {name!r}, which is not installed here")
+        raise InputError(f"{where}: {what} names method {name!r}, which is not installed here")
     return _REGISTRY[key]
 
 

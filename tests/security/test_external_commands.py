@@ -150,6 +150,7 @@ def test_a_header_method_is_only_ever_an_installed_one() -> None:
         ("cmd:touch x {output}", "names the external command"),
         ("cmd-touch-abcdef", "names the external command"),
         ("plug-not-here", "names method 'plug-not-here', which is not installed here"),
+        ("xbf,cmd:touch x {output}", "not installed here"),
     ]:
         with pytest.raises(InputError) as err:
             registry.header_method(name, "folder/a.exr")
