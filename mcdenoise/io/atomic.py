@@ -54,15 +54,17 @@ def host_tag() -> str:
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether process ``pid`` runs on this host."""
+    """Whether process ``pid`` runs on this host (a number no process can have: no)."""
     if pid == os.getpid():
         return True
+    if pid <= 0:  # 0 and negative numbers name process groups, not a process
+        return False
     try:
         os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
     except PermissionError:  # exists, owned by someone else
         return True
+    except (OSError, OverflowError):  # no such process, or a number beyond any PID
+        return False
     return True
 
 

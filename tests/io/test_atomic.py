@@ -76,3 +76,15 @@ def test_new_file_gets_umask_permissions_replaced_file_keeps_its_mode(tmp_path):
         assert stat.S_IMODE(old.stat().st_mode) == 0o640
     finally:
         os.umask(mask)
+
+
+def test_names_with_impossible_pids_never_break_the_sweep(tmp_path):
+    from mcdenoise.io.atomic import sweep_stale_temporaries
+
+    ours = [
+        tmp_path / f"{TMP_PREFIX}{pid}@{host_tag()}~abc.exr"
+        for pid in ("0", "9" * 30, "123456789012")
+    ]
+    for p in ours:
+        p.write_bytes(b"x")
+    assert sorted(sweep_stale_temporaries(tmp_path)) == sorted(ours)  # no such process here
