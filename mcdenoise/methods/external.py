@@ -34,7 +34,8 @@ that started it ends, a ``kill -9`` of mcdenoise included (``PR_SET_PDEATHSIG``,
 ``setpriv`` or else before ``exec``: :func:`_with_parent`); its own children are ended with it
 at a timeout or Ctrl-C (it runs in a session of its own), not at a ``kill -9``. The temporary folders of commands whose mcdenoise process is gone
 (``mcdenoise-cmd-<pid>-*``), and any older than an hour without a recorded process, are
-removed before the next command runs (:func:`sweep_stale_folders`).
+removed before the next command runs, and a program the killed command had started, still
+working in its folder, is ended then (:func:`sweep_stale_folders`).
 
 The command gets mcdenoise's environment plus the thread count it runs with
 (``MCDENOISE_THREADS``, and ``OMP_NUM_THREADS`` unless set): :func:`command_env`.
@@ -507,13 +508,39 @@ def _stale_folders(root: Path, now: float) -> Iterator[Path]:
         yield Path(entry.path)
 
 
+def _kill_left_in(folder: Path) -> None:
+    """Linux: ``SIGKILL`` to every process of this user still working in ``folder`` (its
+    current directory inside it): what a killed command started of its own (a script's
+    program), which the parent-death signal of the command does not reach. A process is
+    found by its working directory, so no other process is touched whatever pids were
+    reused."""
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return
+    inside = os.path.realpath(folder)
+    for entry in proc.iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cwd = os.readlink(entry / "cwd")
+        except OSError:  # gone, or another user's
+            continue
+        if cwd == inside or cwd.startswith(inside + os.sep):
+            try:
+                os.kill(int(entry.name), signal.SIGKILL)
+            except OSError:
+                pass
+
+
 def sweep_stale_folders(root: str | os.PathLike[str] | None = None) -> list[Path]:
     """Remove the temporary folders of commands that no running mcdenoise process owns
-    (:func:`_stale_folders`) from ``root`` (default: the temporary folder); returns them.
-    Errors (a folder removed meanwhile, another user's) are ignored."""
+    (:func:`_stale_folders`) from ``root`` (default: the temporary folder), after ending
+    any process still working in one (:func:`_kill_left_in`); returns them. Errors (a
+    folder removed meanwhile, another user's) are ignored."""
     base = Path(tempfile.gettempdir() if root is None else root)
     removed = []
     for folder in _stale_folders(base, time.time()):
+        _kill_left_in(folder)
         try:
             shutil.rmtree(folder)
         except OSError:

@@ -325,10 +325,14 @@ def test_a_plugin_cannot_take_a_builtin_name_by_registering_it(plugins) -> None:
 
 # --- 6. a command dies with mcdenoise; its folder is swept ------------------------------------
 
+#: The command: starts a program of its own (a grandchild of mcdenoise, which the parent-death
+#: signal does not reach), writes both pids, sleeps.
 SLEEPER = """\
-import os, sys, time
-with open(sys.argv[1], "w") as f:
-    f.write(str(os.getpid()))
+import os, subprocess, sys, time
+own = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+with open(sys.argv[1] + ".tmp", "w") as f:
+    f.write(f"{os.getpid()} {own.pid}")
+os.replace(sys.argv[1] + ".tmp", sys.argv[1])
 time.sleep(120)
 """
 
@@ -366,36 +370,44 @@ def test_a_command_dies_with_mcdenoise_and_its_folder_is_swept(tmp_path: Path, h
         [PY, "-c", PARENT, f"{PY} {sleeper} {pid_file} {{output}}", how],
         env={**os.environ, "TMPDIR": str(temp)},
     )
+    pids: list[int] = []
     try:
         deadline = time.monotonic() + 60
-        while not (pid_file.is_file() and pid_file.read_text()):
+        while not pid_file.is_file():
             assert parent.poll() is None, "the parent ended before the command started"
             assert time.monotonic() < deadline, "the command never started"
             time.sleep(0.05)
-        child = int(pid_file.read_text())
-        assert _running(child)
+        pids = [int(x) for x in pid_file.read_text().split()]
+        child, own = pids
+        assert _running(child) and _running(own)
         parent.send_signal(signal.SIGKILL)
         parent.wait()
         deadline = time.monotonic() + 5
         while _running(child) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not _running(child), "the command outlived a kill -9 of mcdenoise"
+        left = [p for p in temp.iterdir() if p.name.startswith(f"{FOLDER_PREFIX}{parent.pid}-")]
+        assert len(left) == 1  # SIGKILL leaves the folder; the next command's sweep removes it
+        assert _running(own)  # the command's own program, in that folder: the sweep ends it
+        assert sweep_stale_folders(temp) == left and not left[0].exists()
+        deadline = time.monotonic() + 5
+        while _running(own) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _running(own), "the command's own program outlived the sweep"
     finally:
         if parent.poll() is None:
             parent.kill()
-        if pid_file.is_file() and pid_file.read_text() and _running(int(pid_file.read_text())):
-            os.kill(int(pid_file.read_text()), signal.SIGKILL)
-    left = [p for p in temp.iterdir() if p.name.startswith(f"{FOLDER_PREFIX}{parent.pid}-")]
-    assert len(left) == 1  # SIGKILL leaves the folder; the next command's sweep removes it
+        for pid in pids:
+            if _running(pid):
+                os.kill(pid, signal.SIGKILL)
     mine = temp / f"{FOLDER_PREFIX}{os.getpid()}-live"  # a running process's: kept
     old, new = temp / f"{FOLDER_PREFIX}oldformat", temp / f"{FOLDER_PREFIX}freshformat"
     for d in (mine, old, new):
         d.mkdir()
     past = time.time() - STALE_SECONDS - 60
     os.utime(old, (past, past))
-    removed = sweep_stale_folders(temp)
-    assert sorted(removed) == sorted([left[0], old])
-    assert mine.is_dir() and new.is_dir() and not left[0].exists() and not old.exists()
+    assert sweep_stale_folders(temp) == [old]
+    assert mine.is_dir() and new.is_dir() and not old.exists()
 
 
 # --- 7. a word is not a path because a file of that name is here ------------------------------
