@@ -20,6 +20,7 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES
+from mcdenoise.modelfile import CardFields
 
 #: Window edges of the local statistics.
 WINDOWS: tuple[int, ...] = (3, 7, 21)
@@ -123,17 +124,15 @@ class FeatureStats:
         return {"names": list(self.names), "mean": list(self.mean), "std": list(self.std)}
 
     @staticmethod
-    def from_dict(d: dict) -> FeatureStats:
-        try:
-            names, mean, std = (
-                list(d["names"]),
-                [float(v) for v in d["mean"]],
-                [float(v) for v in d["std"]],
-            )
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"model file: bad feature statistics ({err})") from None
+    def from_dict(d: object, what: str = "model file", field: str = "features") -> FeatureStats:
+        """Statistics from a card's field ``field`` (a dict), every value checked
+        (:class:`~mcdenoise.modelfile.CardFields`): names, finite means, positive stds."""
+        f = CardFields(d, what, field)
+        names = f.texts("names", min_len=1, unique=True)
+        mean = f.numbers("mean", -1e30, 1e30, min_len=1)
+        std = f.numbers("std", 1e-30, 1e30, min_len=1)
         if not (len(names) == len(mean) == len(std)):
-            raise InputError("model file: feature statistics have inconsistent lengths")
+            f.fail("names", "feature statistics have inconsistent lengths")
         return FeatureStats(names, mean, std)
 
     def normalize(self, feats: Tensor) -> Tensor:

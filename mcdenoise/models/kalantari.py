@@ -58,7 +58,14 @@ from mcdenoise.filters.settings import (
     feature_bandwidths,
     filter_radius,
 )
-from mcdenoise.modelfile import load_weights, read_model_file, save_model
+from mcdenoise.modelfile import (
+    MAX_WIDTH,
+    CardFields,
+    check_model_size,
+    load_weights,
+    read_model_file,
+    save_model,
+)
 from mcdenoise.models.features import FeatureStats, check_feature_names, feature_names
 
 #: Version of the model file layout.
@@ -136,23 +143,60 @@ class ModelCard:
 
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> ModelCard:
-        if d.get("format") != FORMAT:
-            raise InputError(f"{what}: format {d.get('format')!r} is not {FORMAT!r}")
-        try:
-            card = ModelCard(
-                kind=str(d["kind"]),
-                guides=list(d["guides"]),
-                guide_vars=list(d["guide_vars"]),
-                features=FeatureStats.from_dict(d["features"]),
-                hidden=[int(h) for h in d["hidden"]],
-                settings=dict(d.get("settings", {})),
-                training=dict(d.get("training", {})),
-                bound=float(d.get("bound", BOUND)),
-            )
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"{what}: incomplete model card ({err})") from None
-        settings_class(card.kind)
+        """The card of a model file: every field's type and range checked, and the size of
+        the network it describes bounded (:mod:`mcdenoise.modelfile`), before anything is built.
+        """
+        f = CardFields(d, what)
+        if f.get("format", None) != FORMAT:
+            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        kind = f.text("kind", KINDS)
+        card = ModelCard(
+            kind=kind,
+            guides=f.texts("guides", GUIDE_FEATURES, unique=True),
+            guide_vars=f.texts("guide_vars", GUIDE_FEATURES, unique=True),
+            features=FeatureStats.from_dict(f.get("features"), what, "features"),
+            hidden=f.integers("hidden", 1, MAX_WIDTH, min_len=0),
+            settings=card_settings(f, kind),
+            training=f.mapping("training", default={}),
+            bound=f.number("bound", 0.01, 100.0, default=BOUND),
+        )
+        n_in, n_out = len(card.features.names), len(card.outputs)
+        check_model_size(lambda: KalantariNet(n_in, card.hidden, n_out, card.bound), what)
         return card
+
+
+#: Ranges of the integer filter settings a card may hold (a card from a file must not ask for
+#: a filter that never ends; the shipped models use a 21-pixel window and radii 10 and 1).
+SETTING_RANGES: dict[str, tuple[int, int]] = {
+    "kernel_size": (1, 101),
+    "search_radius": (0, 50),
+    "patch_radius": (0, 10),
+    "passes": (1, 2),
+}
+
+
+def card_settings(f: CardFields, kind: str) -> dict[str, Any]:
+    """The ``settings`` field of a card: fields of the ``kind``'s settings class only, each
+    of its type (integers in :data:`SETTING_RANGES`, numbers not NaN and >= 0, guide names)."""
+    defaults = {x.name: x.default for x in dataclasses.fields(settings_class(kind))}
+    s = f.sub("settings", default={})
+    out: dict[str, Any] = {}
+    for key in f.mapping("settings", default={}):
+        if key not in defaults:
+            s.fail(key, f"is not a setting of the {kind} filter")
+        default = defaults[key]
+        if isinstance(default, bool):
+            out[key] = s.flag(key)
+        elif isinstance(default, int):
+            lo, hi = SETTING_RANGES.get(key, (0, 1000))
+            out[key] = s.integer(key, lo, hi, odd=key == "kernel_size")
+        elif isinstance(default, float):
+            out[key] = s.number(key, 0.0)
+        elif isinstance(default, tuple):
+            out[key] = s.texts(key, GUIDE_FEATURES, unique=True)
+        else:
+            out[key] = s.text(key)
+    return out
 
 
 class KalantariNet(nn.Module):
@@ -368,9 +412,11 @@ __all__ = [
     "BOUND",
     "FORMAT",
     "KINDS",
+    "SETTING_RANGES",
     "KalantariModel",
     "KalantariNet",
     "ModelCard",
+    "card_settings",
     "new_model",
     "output_names",
     "settings_class",

@@ -53,7 +53,15 @@ from torch import Tensor, nn
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.albedo import demodulate
-from mcdenoise.modelfile import load_weights, read_model_file, save_model
+from mcdenoise.modelfile import (
+    MAX_KERNEL,
+    MAX_WIDTH,
+    CardFields,
+    check_model_size,
+    load_weights,
+    read_model_file,
+    save_model,
+)
 from mcdenoise.models.encoders import (
     SOURCES,
     Normalizer,
@@ -133,22 +141,29 @@ class KpcnCard:
 
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> KpcnCard:
-        if d.get("format") != FORMAT:
-            raise InputError(f"{what}: format {d.get('format')!r} is not {FORMAT!r}")
-        try:
-            card = KpcnCard(
-                sources=[str(s) for s in d["sources"]],
-                stats={str(k): FeatureStats.from_dict(v) for k, v in d["stats"].items()},
-                channels=[int(c) for c in d["channels"]],
-                kernel=int(d["kernel"]),
-                scales=int(d["scales"]),
-                encoder=str(d["encoder"]),
-                training=dict(d.get("training", {})),
-                albedo_kernels=bool(d.get("albedo_kernels", False)),
-            )
-        except (KeyError, TypeError, ValueError, AttributeError) as err:
-            raise InputError(f"{what}: incomplete model card ({err})") from None
+        """The card of a model file: every field's type and range checked, and the size of
+        the model it describes bounded (:mod:`mcdenoise.modelfile`), before anything is built.
+        """
+        f = CardFields(d, what)
+        if f.get("format", None) != FORMAT:
+            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        channels = f.integers("channels", 1, MAX_WIDTH, min_len=2, max_len=8)
+        stats = f.sub("stats")
+        card = KpcnCard(
+            sources=f.texts("sources", tuple(SOURCES), min_len=1, unique=True),
+            stats={
+                k: FeatureStats.from_dict(stats.get(k), what, f"stats.{k}")
+                for k in f.mapping("stats")
+            },
+            channels=channels,
+            kernel=f.integer("kernel", 1, MAX_KERNEL, odd=True),
+            scales=f.integer("scales", 1, len(channels)),
+            encoder=f.text("encoder", ENCODERS),
+            training=f.mapping("training", default={}),
+            albedo_kernels=f.flag("albedo_kernels", default=False),
+        )
         card.check(what)
+        check_model_size(lambda: KpcnModel(card), what)
         return card
 
 

@@ -54,13 +54,23 @@ import torch
 from torch import Tensor, nn
 
 from mcdenoise.errors import InputError
-from mcdenoise.modelfile import load_weights, read_model_file, save_model
+from mcdenoise.modelfile import (
+    MAX_WIDTH,
+    CardFields,
+    check_model_size,
+    load_weights,
+    read_model_file,
+    save_model,
+)
 
 FORMAT = "mcdenoise.nnao/1"
 #: Inputs per sample point: offset / radius (3), normal (3), surface present (1).
 FEATURES_PER_SAMPLE = 7
 #: Clamp of the offset / radius inputs (depth discontinuities).
 OFFSET_CLAMP = 2.0
+#: Most sample points a model file may ask for (the inputs of every pixel are built at once:
+#: 7 floats per sample point and pixel).
+MAX_SAMPLES = 128
 #: The spiral's radial exponent of model files whose card does not record one (all files
 #: written before ``radial_power`` existed: Vogel's ``sqrt``).
 LEGACY_RADIAL_POWER = 0.5
@@ -111,18 +121,19 @@ class NnaoCard:
 
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> NnaoCard:
-        if d.get("format") != FORMAT:
-            raise InputError(f"{what}: format {d.get('format')!r} is not {FORMAT!r}")
-        try:
-            card = NnaoCard(
-                samples=int(d["samples"]),
-                radial_power=float(d.get("radial_power", LEGACY_RADIAL_POWER)),
-                hidden=[int(h) for h in d["hidden"]],
-                training=dict(d.get("training", {})),
-            )
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"{what}: incomplete model card ({err})") from None
+        """The card of a model file: every field's type and range checked, and the size of
+        the network bounded (:mod:`mcdenoise.modelfile`), before anything is built."""
+        f = CardFields(d, what)
+        if f.get("format", None) != FORMAT:
+            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        card = NnaoCard(
+            samples=f.integer("samples", 1, MAX_SAMPLES),
+            radial_power=f.number("radial_power", 0.01, 100.0, default=LEGACY_RADIAL_POWER),
+            hidden=f.integers("hidden", 1, MAX_WIDTH),
+            training=f.mapping("training", default={}),
+        )
         card.check(what)
+        check_model_size(lambda: NnaoModel(card), what)
         return card
 
 
@@ -171,6 +182,7 @@ __all__ = [
     "FEATURES_PER_SAMPLE",
     "FORMAT",
     "LEGACY_RADIAL_POWER",
+    "MAX_SAMPLES",
     "OFFSET_CLAMP",
     "NnaoCard",
     "NnaoModel",

@@ -57,7 +57,14 @@ from torch import Tensor, nn
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.albedo import demodulate
-from mcdenoise.modelfile import load_weights, read_model_file, save_model
+from mcdenoise.modelfile import (
+    MAX_WIDTH,
+    CardFields,
+    check_model_size,
+    load_weights,
+    read_model_file,
+    save_model,
+)
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel
 from mcdenoise.models.multiscale import (
     LOGIT_LIMIT,
@@ -73,6 +80,8 @@ FORMAT = "mcdenoise.kpcn-temporal/1"
 MODES = ("offline", "causal")
 #: Default inference tile edge (pixels).
 TILE = 512
+#: Most frames of a window a model file may ask for (each frame's trunk features are kept).
+MAX_WINDOW = 15
 #: Initial logit bias of the centre frame's taps: with 5 frames its kernel starts with
 #: e² / (e² + 4) = 65 % of the weight, each other frame 9 %. Equal weights (0) made the
 #: untrained model 3.5× worse than the single-frame one on validation sequences (a firefly of
@@ -135,19 +144,21 @@ class TemporalCard:
 
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> TemporalCard:
-        if d.get("format") != FORMAT:
-            raise InputError(f"{what}: format {d.get('format')!r} is not {FORMAT!r}")
-        try:
-            card = TemporalCard(
-                base=dict(d["base"]),
-                window=int(d["window"]),
-                mode=str(d["mode"]),
-                hidden=[int(h) for h in d["hidden"]],
-                training=dict(d.get("training", {})),
-            )
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"{what}: incomplete model card ({err})") from None
+        """The card of a model file: every field's type and range checked (the ``base`` card
+        by :meth:`KpcnCard.from_dict`), and the size of the model it describes bounded
+        (:mod:`mcdenoise.modelfile`), before anything is built."""
+        f = CardFields(d, what)
+        if f.get("format", None) != FORMAT:
+            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        card = TemporalCard(
+            base=f.mapping("base"),
+            window=f.integer("window", 1, MAX_WINDOW),
+            mode=f.text("mode", MODES),
+            hidden=f.integers("hidden", 1, MAX_WIDTH),
+            training=f.mapping("training", default={}),
+        )
         card.check(what)
+        check_model_size(lambda: TemporalKpcn(card), what)
         return card
 
 
@@ -492,6 +503,7 @@ def from_single_frame(
 
 __all__ = [
     "FORMAT",
+    "MAX_WINDOW",
     "MODES",
     "TILE",
     "TemporalCard",
