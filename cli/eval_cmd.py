@@ -114,6 +114,12 @@ class _MetricsOption(click.Option):
     help="Evaluate outputs whose recorded source shows another scene than the reference "
     "(a warning instead of an error).",
 )
+@click.option(
+    "--keep-going",
+    is_flag=True,
+    help="With --ref: exit with 0 even when images FAILED (NaN/Inf pixels in an output or its "
+    "reference: no metrics). Without it the report is still written, and eval exits with 1.",
+)
 def eval_cmd(
     threads,
     outputs,
@@ -128,6 +134,7 @@ def eval_cmd(
     merge,
     allow_commands,
     force,
+    keep_going,
 ):
     """Compare denoised OUTPUTS (files or folders) with a reference; write a report.
 
@@ -166,6 +173,8 @@ def eval_cmd(
             raise click.UsageError("--experiment takes no OUTPUTS, --ref or --input")
         if force:
             raise click.UsageError("--force applies to --ref, not to --experiment")
+        if keep_going:
+            raise click.UsageError("--keep-going applies to --ref, not to --experiment")
         if warmup is not None:
             raise click.UsageError("--warmup applies to --ref sequences, not to --experiment")
         _experiment(
@@ -207,6 +216,21 @@ def eval_cmd(
     for kind in ("html", "json", "csv", "frames"):
         if kind in paths:
             click.echo(f"{kind}: {paths[kind]}")
+    _fail_on_failed_rows(result, keep_going)
+
+
+def _fail_on_failed_rows(result, keep_going):
+    """Exit with 1 (one line on stderr) when a row FAILED, unless --keep-going: a script must
+    not take a report whose rows have no metrics for a successful evaluation."""
+    from mcdenoise.errors import McdenoiseError
+
+    failed = [r for r in result.records if r.failed]
+    if failed and not keep_going:
+        raise McdenoiseError(
+            f"{len(failed)} of {len(result.records)} evaluated image(s) FAILED (NaN/Inf "
+            f"pixels, no metrics), e.g. {failed[0].file}: {failed[0].reason}; the report is "
+            "written (--keep-going: exit with 0 anyway)"
+        )
 
 
 def _estimated(outputs, out_dir):

@@ -30,7 +30,7 @@ import datetime as _dt
 import json
 import os
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -90,7 +90,8 @@ def scan_exr(path: PathLike, *, what: str = "file") -> list[Path]:
     Names starting with ``.mcdenoise-tmp-`` (unfinished atomic writes) are skipped.
 
     Raises:
-        InputError: ``path`` does not exist, or the folder holds no EXR file.
+        InputError: ``path`` does not exist, is not a regular file (a named pipe), or the
+            folder holds no EXR file.
     """
     p = Path(path)
     if p.is_dir():
@@ -104,30 +105,52 @@ def scan_exr(path: PathLike, *, what: str = "file") -> list[Path]:
         return found
     if not p.exists():
         raise InputError(f"{what} not found: {p}")
+    if not p.is_file():  # a named pipe would block the reader: refused before it is opened
+        from mcdenoise.io.exr_messages import special_file_kind
+
+        kind = special_file_kind(p.stat().st_mode)
+        raise InputError(f"{p}: is {kind}, not a regular file; refused (reading could block)")
     return [p]
 
 
-def match_prefix(stem: str, candidates: Sequence[str]) -> str | None:
+class PrefixMatcher:
+    """:func:`match_prefix` against one set of candidates, in time that grows with the length
+    of the stem, not with the number of candidates: the only candidates that can match a stem
+    are the stem itself and its prefixes that end before a non-alphanumeric character, looked
+    up in a set, longest first. Matching n outputs to n references is then linear in n (a loop
+    over the candidates made ``eval --ref DIR`` with 3000 files quadratic).
+
+    >>> refs = PrefixMatcher(["cornell", "cornell_spp16", "corn", "box"])
+    >>> refs("cornell_spp16_nlm"), refs("cornell-x"), refs("boxes_nlm")
+    ('cornell_spp16', 'cornell', None)
+    """
+
+    def __init__(self, candidates: Iterable[str]) -> None:
+        self._names = frozenset(c for c in candidates if c)
+
+    def __call__(self, stem: str) -> str | None:
+        if stem in self._names:
+            return stem
+        for i in range(len(stem) - 1, 0, -1):
+            if not stem[i].isalnum() and stem[:i] in self._names:
+                return stem[:i]
+        return None
+
+
+def match_prefix(stem: str, candidates: Iterable[str]) -> str | None:
     """The longest candidate that is a prefix of ``stem`` at a word boundary, else ``None``.
 
     A candidate matches when ``stem`` equals it or continues it with a non-alphanumeric
     character (``_``, ``-``, ``.``), so reference ``cornell`` matches output
-    ``cornell_spp16_nlm`` but reference ``box`` does not match output ``boxes_nlm``.
+    ``cornell_spp16_nlm`` but reference ``box`` does not match output ``boxes_nlm``. To match
+    many stems against the same candidates, build one :class:`PrefixMatcher`.
 
     >>> match_prefix("cornell_spp16_nlm", ["cornell", "cornell_spp16", "corn", "box"])
     'cornell_spp16'
     >>> match_prefix("boxes_nlm", ["box"]) is None
     True
     """
-    best: str | None = None
-    for cand in candidates:
-        if not cand or not stem.startswith(cand):
-            continue
-        if len(stem) > len(cand) and stem[len(cand)].isalnum():
-            continue
-        if best is None or len(cand) > len(best):
-            best = cand
-    return best
+    return PrefixMatcher(candidates)(stem)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -135,6 +158,16 @@ def _same_file(a: Path, b: Path) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def _file_id(p: Path) -> tuple[int, int] | None:
+    """``(device, inode)`` of the file ``p`` (symlinks followed; what ``os.path.samefile``
+    compares), ``None`` if it cannot be read."""
+    try:
+        st = os.stat(p)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
 
 
 def _key(p: Path, part: str | None = None, profile: str | None = None) -> str:
@@ -481,20 +514,175 @@ class _Planned:
 
     meta: _Meta
     scene: str  # the reference's scene, `:<Layer>` added for a view layer of it
+    key: str = ""  # _key of the output file
     input: Path | None = None
     input_part: str | None = None  # the part of ``input`` the output was made from
     input_profile: str | None = None  # the profile ``input`` was read with (a view layer)
     notes: list[str] = field(default_factory=list)
+    input_key: str | None = None  # _key of the noisy input image (set with the input)
+    input_file_key: str | None = None  # _key of its file, every part
 
-    @property
-    def input_key(self) -> str | None:
-        if self.input is None:
-            return None
-        return _key(self.input, self.input_part, self.input_profile)
+    def set_input(self, path: Path, part: str | None = None) -> None:
+        """The noisy input, and its keys (each path is resolved once, not at every lookup)."""
+        self.input, self.input_part = path, part
+        resolved = str(path.resolve())
+        self.input_file_key = resolved + (f"#{part}" if part else "")
+        self.input_key = self.input_file_key + (
+            f" [{self.input_profile}]" if self.input_profile else ""
+        )
 
-    @property
-    def input_file_key(self) -> str | None:
-        return None if self.input is None else _key(self.input, self.input_part)
+
+@dataclass
+class FilePlan:
+    """What :func:`plan_files` matched: every output with its scene and noisy input, and
+    every noisy input with its scene; keys are :func:`_key` of the image.
+
+    Attributes:
+        refs: scene (reference stem) -> reference file.
+        given: every output file given, with its header metadata.
+        planned: the outputs to evaluate (``given`` less the files that are noisy inputs).
+        noisy_files: noisy input key -> (file, part, profile).
+        noisy_meta: noisy input key -> its header metadata.
+        noisy_scene: noisy input key -> its scene.
+        scene_refs: scene -> (reference file, Blender view layer or ``None``).
+    """
+
+    refs: dict[str, Path]
+    given: dict[str, _Meta]
+    planned: dict[str, _Planned]
+    noisy_files: dict[str, tuple[Path, str | None, str | None]]
+    noisy_meta: dict[str, _Meta]
+    noisy_scene: dict[str, str]
+    scene_refs: dict[str, tuple[Path, str | None]]
+
+
+def plan_files(
+    reference: PathLike,
+    outputs: Sequence[PathLike],
+    *,
+    inputs: Sequence[PathLike] | None = None,
+    force: bool = False,
+    warn: Callable[[str], None] | None = None,
+) -> FilePlan:
+    """Match outputs to references and noisy inputs (reading headers only, no pixels): the
+    first half of :func:`evaluate_files`, whose docstring gives the rules and the errors.
+
+    Linear in the number of files: every file is stat-ed, resolved and probed a bounded
+    number of times, and names are matched through :class:`PrefixMatcher` (3000 outputs
+    against 3000 references: ``benchmarks/bench_eval_matching.py``).
+    """
+    refs = _references(reference)
+    single = Path(reference).is_file()
+    ref_ids = {i for i in map(_file_id, refs.values()) if i is not None}
+    ref_match = PrefixMatcher(refs)
+
+    # 1. every given output, deduplicated, with its header metadata (pixels are read later)
+    given: dict[str, _Meta] = {}
+    for arg in outputs:
+        from_folder = Path(arg).is_dir()
+        for f in scan_exr(arg, what="output"):
+            if _file_id(f) in ref_ids:
+                if from_folder:
+                    continue
+                raise InputError(f"output {f} is the reference itself")
+            key = _key(f)
+            if key not in given:
+                given[key] = _probe(f)
+    if not given:
+        raise InputError("no output to evaluate (only references were given)")
+    noisy_given: dict[str, Path] = {}
+    for arg in inputs or ():
+        for f in scan_exr(arg, what="noisy input"):
+            noisy_given[_key(f)] = f
+
+    def scene_of(p: Path, what: str) -> str:
+        if single:
+            return next(iter(refs))
+        hit = ref_match(p.stem)
+        if hit is None:
+            raise InputError(
+                f"{what} {p} matches no reference in {reference} "
+                f"(references: {', '.join(sorted(refs))})"
+            )
+        return hit
+
+    # 2. find each output's noisy input; check that it shows the reference's scene
+    planned: dict[str, _Planned] = {}
+    ref_identity: dict[Path, dict[str, str]] = {}
+    ref_layers: dict[Path, list[str]] = {}
+    scene_refs: dict[str, tuple[Path, str | None]] = {s: (p, None) for s, p in refs.items()}
+    by_stem = {p.stem: p for p in noisy_given.values()}
+    noisy_match = PrefixMatcher(by_stem)
+    for key, meta in given.items():
+        base = scene_of(meta.path, "output")
+        plan = _Planned(meta=meta, scene=base, key=key, input_profile=meta.source_profile)
+        layer = _cycles_layer(meta.source_profile)
+        if layer is not None:  # made from one view layer: the reference's layer of that name
+            ref = refs[base]
+            if ref not in ref_layers:
+                ref_layers[ref] = _reference_layers(ref)
+            if ref_layers[ref] and layer not in ref_layers[ref]:
+                raise InputError(
+                    f"reference {ref} has no Cycles view layer {layer!r} (output {meta.path} "
+                    f"was made from that layer); its layers: "
+                    f"{', '.join(map(repr, ref_layers[ref]))}"
+                )
+            if ref_layers[ref]:  # a reference without view layers is one image: as given
+                plan.scene = f"{base}:{layer}"
+                scene_refs[plan.scene] = (ref, layer)
+        if meta.source is not None:
+            src = _source_path(meta)  # a relative source: relative to the output
+            if src is not None:
+                plan.set_input(src, meta.source_part)
+            else:
+                plan.notes.append(f"noisy input {meta.source} ({ATTR_SOURCE}) not found")
+            problem = _scene_mismatch(meta, refs[base], ref_identity)
+            if problem is not None:
+                if not force:
+                    raise InputError(f"{problem}; give the reference of that scene, or --force")
+                plan.notes.append(problem)
+                (warn or _warn)(f"{problem} (evaluated anyway: --force)")
+        if plan.input is None and noisy_given:
+            hit = noisy_match(meta.path.stem)
+            if hit is not None and _key(by_stem[hit]) != key:
+                plan.set_input(by_stem[hit])
+        planned[key] = plan
+
+    # 3. a given file without a method attribute that is another output's input is a noisy row
+    # (read as that output's source was: with its recorded profile, a view layer)
+    sources = {p.input_key for p in planned.values() if p.input is not None}
+    source_files = {p.input_file_key for p in planned.values() if p.input is not None}
+    for key in list(planned):
+        if planned[key].meta.method is None and (key in source_files or key in noisy_given):
+            path = planned.pop(key).meta.path
+            if key in sources or key in noisy_given:
+                noisy_given.setdefault(key, path)
+    # (an input that is itself an evaluated output, e.g. a denoiser chain, gets no noisy row;
+    # a given input that every output read with a profile gets only those rows)
+    noisy_files: dict[str, tuple[Path, str | None, str | None]] = {
+        k: (p, None, None)
+        for k, p in noisy_given.items()
+        if k not in planned and (k in sources or k not in source_files)
+    }
+    for plan in planned.values():
+        if plan.input is not None and plan.input_key not in planned:
+            assert plan.input_key is not None
+            noisy_files.setdefault(
+                plan.input_key, (plan.input, plan.input_part, plan.input_profile)
+            )
+
+    # 4. noisy inputs: metadata and scene (the scene of the first output made from each)
+    first_user: dict[str, str] = {}
+    for plan in planned.values():
+        if plan.input_key is not None:
+            first_user.setdefault(plan.input_key, plan.scene)
+    noisy_meta: dict[str, _Meta] = {}
+    noisy_scene: dict[str, str] = {}
+    for key, (path, part, profile) in noisy_files.items():
+        noisy_meta[key] = given[key] if key in given else _probe(path, part, profile)
+        user = first_user.get(key)
+        noisy_scene[key] = user if user is not None else scene_of(path, "noisy input")
+    return FilePlan(refs, given, planned, noisy_files, noisy_meta, noisy_scene, scene_refs)
 
 
 def evaluate_files(
@@ -520,6 +708,7 @@ def evaluate_files(
     view layer of a Blender Cycles file (``mcdenoise:source_profile = "cycles:<Layer>"``) is
     compared with that layer of a multilayer reference (scene ``<ref>:<Layer>``), and its
     noisy row is that layer of its source; a reference without view layers is taken as given.
+    The matching is :func:`plan_files`.
 
     Args:
         reference: a reference EXR, or a folder of reference EXRs (matched to each output by
@@ -546,137 +735,42 @@ def evaluate_files(
         mcdenoise.errors.ExrError: an EXR cannot be read.
     """
     result = _new_result(metrics)
-    refs = _references(reference)
-    single = Path(reference).is_file()
-
-    # 1. every given output, deduplicated, with its header metadata (pixels are read later)
-    given: dict[str, _Meta] = {}
-    for arg in outputs:
-        from_folder = Path(arg).is_dir()
-        for f in scan_exr(arg, what="output"):
-            ref_hit = next((r for r in refs.values() if _same_file(f, r)), None)
-            if ref_hit is not None:
-                if from_folder:
-                    continue
-                raise InputError(f"output {f} is the reference itself")
-            if _key(f) not in given:
-                given[_key(f)] = _probe(f)
-    if not given:
-        raise InputError("no output to evaluate (only references were given)")
-    noisy_given: dict[str, Path] = {}
-    for arg in inputs or ():
-        for f in scan_exr(arg, what="noisy input"):
-            noisy_given[_key(f)] = f
-
-    def scene_of(p: Path, what: str) -> str:
-        if single:
-            return next(iter(refs))
-        hit = match_prefix(p.stem, list(refs))
-        if hit is None:
-            raise InputError(
-                f"{what} {p} matches no reference in {reference} "
-                f"(references: {', '.join(sorted(refs))})"
-            )
-        return hit
-
-    # 2. find each output's noisy input; check that it shows the reference's scene
-    planned: dict[str, _Planned] = {}
-    ref_ids: dict[Path, dict[str, str]] = {}
-    ref_layers: dict[Path, list[str]] = {}
-    scene_refs: dict[str, tuple[Path, str | None]] = {s: (p, None) for s, p in refs.items()}
-    for key, meta in given.items():
-        base = scene_of(meta.path, "output")
-        plan = _Planned(meta=meta, scene=base, input_profile=meta.source_profile)
-        layer = _cycles_layer(meta.source_profile)
-        if layer is not None:  # made from one view layer: the reference's layer of that name
-            ref = refs[base]
-            if ref not in ref_layers:
-                ref_layers[ref] = _reference_layers(ref)
-            if ref_layers[ref] and layer not in ref_layers[ref]:
-                raise InputError(
-                    f"reference {ref} has no Cycles view layer {layer!r} (output {meta.path} "
-                    f"was made from that layer); its layers: "
-                    f"{', '.join(map(repr, ref_layers[ref]))}"
-                )
-            if ref_layers[ref]:  # a reference without view layers is one image: as given
-                plan.scene = f"{base}:{layer}"
-                scene_refs[plan.scene] = (ref, layer)
-        if meta.source is not None:
-            src = _source_path(meta)  # a relative source: relative to the output
-            if src is not None:
-                plan.input, plan.input_part = src, meta.source_part
-            else:
-                plan.notes.append(f"noisy input {meta.source} ({ATTR_SOURCE}) not found")
-            problem = _scene_mismatch(meta, refs[base], ref_ids)
-            if problem is not None:
-                if not force:
-                    raise InputError(f"{problem}; give the reference of that scene, or --force")
-                plan.notes.append(problem)
-                (warn or _warn)(f"{problem} (evaluated anyway: --force)")
-        if plan.input is None and noisy_given:
-            by_stem = {p.stem: p for p in noisy_given.values()}
-            hit = match_prefix(meta.path.stem, list(by_stem))
-            if hit is not None and _key(by_stem[hit]) != key:
-                plan.input = by_stem[hit]
-        planned[key] = plan
-
-    # 3. a given file without a method attribute that is another output's input is a noisy row
-    # (read as that output's source was: with its recorded profile, a view layer)
-    sources = {p.input_key for p in planned.values() if p.input is not None}
-    source_files = {p.input_file_key for p in planned.values() if p.input is not None}
-    for key in list(planned):
-        if planned[key].meta.method is None and (key in source_files or key in noisy_given):
-            path = planned.pop(key).meta.path
-            if key in sources or key in noisy_given:
-                noisy_given.setdefault(key, path)
-    # (an input that is itself an evaluated output, e.g. a denoiser chain, gets no noisy row;
-    # a given input that every output read with a profile gets only those rows)
-    noisy_files: dict[str, tuple[Path, str | None, str | None]] = {
-        k: (p, None, None)
-        for k, p in noisy_given.items()
-        if k not in planned and (k in sources or k not in source_files)
-    }
-    for plan in planned.values():
-        if plan.input is not None and plan.input_key not in planned:
-            noisy_files.setdefault(
-                plan.input_key, (plan.input, plan.input_part, plan.input_profile)
-            )
-
-    # 4. noisy inputs: metadata and scene
-    noisy_meta: dict[str, _Meta] = {}
-    noisy_scene: dict[str, str] = {}
-    for key, (path, part, profile) in noisy_files.items():
-        noisy_meta[key] = given[key] if key in given else _probe(path, part, profile)
-        users = [p.scene for p in planned.values() if p.input_key == key]
-        noisy_scene[key] = users[0] if users else scene_of(path, "noisy input")
+    plan = plan_files(reference, outputs, inputs=inputs, force=force, warn=warn)
+    given, planned, noisy_meta = plan.given, plan.planned, plan.noisy_meta
 
     # 5. jobs per scene: each noisy input (by spp, name) followed by its outputs, then the rest
-    total = len(noisy_files) + len(planned)
+    noisy_by_scene: dict[str, list[str]] = {}
+    for key, scene in plan.noisy_scene.items():
+        noisy_by_scene.setdefault(scene, []).append(key)
+    outputs_by_scene: dict[str, list[_Planned]] = {}
+    for p in planned.values():
+        outputs_by_scene.setdefault(p.scene, []).append(p)
+    total = len(plan.noisy_files) + len(planned)
     from mcdenoise.progress import progress_bar
 
     bar = progress_bar(total=total, desc="eval", unit="image", progress=progress)
     try:
-        for scene in sorted({*noisy_scene.values(), *(p.scene for p in planned.values())}):
+        for scene in sorted({*noisy_by_scene, *outputs_by_scene}):
             jobs: list[_Job] = []
             scene_noisy = sorted(
-                (k for k, s in noisy_scene.items() if s == scene),
-                key=lambda k: (noisy_meta[k].spp or 0, k),
+                noisy_by_scene.get(scene, ()), key=lambda k: (noisy_meta[k].spp or 0, k)
             )
-            scene_outputs = sorted(
-                (p for p in planned.values() if p.scene == scene), key=lambda p: str(p.meta.path)
-            )
+            scene_outputs = sorted(outputs_by_scene.get(scene, ()), key=lambda p: str(p.meta.path))
+            by_input: dict[str, list[_Planned]] = {}
+            for p in scene_outputs:
+                if p.input_key is not None:
+                    by_input.setdefault(p.input_key, []).append(p)
             placed: set[str] = set()
             for nkey in scene_noisy:
                 jobs.append(_file_job(noisy_meta[nkey], scene, ROLE_NOISY, "noisy", None))
-                for plan in scene_outputs:
-                    if plan.input_key == nkey:
-                        jobs.append(_output_job(plan, noisy_meta[nkey]))
-                        placed.add(_key(plan.meta.path))
-            for plan in scene_outputs:
-                if _key(plan.meta.path) not in placed:
-                    upstream = given.get(plan.input_key) if plan.input_key else None
-                    jobs.append(_output_job(plan, upstream))
-            ref_path, layer = scene_refs[scene]
+                for p in by_input.get(nkey, ()):
+                    jobs.append(_output_job(p, noisy_meta[nkey]))
+                    placed.add(p.key)
+            for p in scene_outputs:
+                if p.key not in placed:
+                    upstream = given.get(p.input_key) if p.input_key else None
+                    jobs.append(_output_job(p, upstream))
+            ref_path, layer = plan.scene_refs[scene]
             ref_color = _load(ref_path, None, f"cycles:{layer}" if layer else None)[0]
             _evaluate_scene(
                 result,

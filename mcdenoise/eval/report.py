@@ -35,7 +35,7 @@ from mcdenoise.eval.metrics import METRICS, PARTS, flip_status, relmse_map
 from mcdenoise.eval.results import ROLE_NOISY, EvalRecord, EvalResult, ScenePreview, encode_float
 from mcdenoise.eval.temporal import metric_spec
 from mcdenoise.eval.tonemap import colorbar, display, false_color, to_uint8
-from mcdenoise.io.atomic import atomic_path, write_text_atomic
+from mcdenoise.io.atomic import atomic_path, sweep_stale_temporaries, write_text_atomic
 
 #: Columns of results.csv before the metric columns.
 CSV_HEAD = ("scene", "role", "method", "file", "input", "spp", "seconds", "device")
@@ -95,6 +95,7 @@ def write_report(result: EvalResult, out_dir: str | os.PathLike[str]) -> dict[st
     out = Path(out_dir)
     try:
         (out / "images").mkdir(parents=True, exist_ok=True)
+        sweep_stale_temporaries(out / "images")  # once: the images are written without a sweep
     except OSError as err:
         raise McdenoiseError(f"cannot create report folder {out}: {err.strerror or err}") from None
     paths = {
@@ -188,13 +189,15 @@ def write_frames_csv(result: EvalResult, path: str | os.PathLike[str]) -> None:
 # --- images -------------------------------------------------------------------------------
 
 
-def write_png(path: str | os.PathLike[str], rgb: np.ndarray) -> None:
-    """Write display-encoded ``(3, H, W)`` values in ``[0, 1]`` as an 8-bit sRGB PNG, atomically."""
+def write_png(path: str | os.PathLike[str], rgb: np.ndarray, *, sweep: bool = True) -> None:
+    """Write display-encoded ``(3, H, W)`` values in ``[0, 1]`` as an 8-bit sRGB PNG, atomically
+    (``sweep``: see :func:`~mcdenoise.io.atomic.atomic_path`; the report's images pass False,
+    :func:`write_report` sweeps their folder once)."""
     import OpenImageIO as oiio
 
     pixels = to_uint8(rgb)  # (H, W, 3)
     buf = oiio.ImageBuf(pixels)
-    with atomic_path(path) as tmp:
+    with atomic_path(path, sweep=sweep) as tmp:
         if not buf.write(str(tmp)):
             raise McdenoiseError(f"cannot write {path}: {buf.geterror() or 'OpenImageIO error'}")
 
@@ -415,8 +418,9 @@ def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
     for i, rec in enumerate(records):
         img_name = f"{prefix}_{i:02d}_{_slug(rec.method)}.png"
         err_name = f"{prefix}_{i:02d}_{_slug(rec.method)}_relmse.png"
-        write_png(images_dir / img_name, display(preview.images[rec.file], preview.exposure))
-        write_png(images_dir / err_name, false_color(maps[rec.file], lo, hi))
+        shown = display(preview.images[rec.file], preview.exposure)
+        write_png(images_dir / img_name, shown, sweep=False)
+        write_png(images_dir / err_name, false_color(maps[rec.file], lo, hi), sweep=False)
         spp = f", {rec.spp} spp" if rec.spp is not None else ""
         if rec.failed:
             detail = (
@@ -442,8 +446,8 @@ def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
     bar_name = f"{prefix}_colorbar.png"
     seq = next((r.sequence for r in records if r.sequence is not None and r.sequence.frames), None)
     last_frame = f" / {seq.frames[-1].frame}" if seq is not None else ""
-    write_png(images_dir / ref_name, display(ref, preview.exposure))
-    write_png(images_dir / bar_name, colorbar(w * zoom, 12))
+    write_png(images_dir / ref_name, display(ref, preview.exposure), sweep=False)
+    write_png(images_dir / bar_name, colorbar(w * zoom, 12), sweep=False)
     ticks = "".join(
         f"<span>{10.0**e:.0e}</span>"
         for e in range(round(math.log10(lo)), round(math.log10(hi)) + 1)
@@ -462,7 +466,7 @@ def _strip(result: EvalResult, scene: str, out: Path, index: int) -> str:
         ov_name = f"{prefix}_overview.png"
         thumb = display(preview.overview, preview.exposure)
         thumb = _with_box(thumb, preview.window, preview.overview_factor)
-        write_png(images_dir / ov_name, thumb)
+        write_png(images_dir / ov_name, thumb, sweep=False)
         where = (
             f"Images show the crop x {x0}\u2013{x0 + cw - 1}, y {y0}\u2013{y0 + ch - 1} of the "
             f"{full_w}\u00d7{full_h} image (green box), chosen where the reference has the most "

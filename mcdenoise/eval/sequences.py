@@ -27,6 +27,7 @@ from mcdenoise.eval.evaluate import (
     _FRAME_STEM,
     ATTR_SOURCE,
     PathLike,
+    PrefixMatcher,
     _as_float,
     _as_int,
     _key,
@@ -39,7 +40,6 @@ from mcdenoise.eval.evaluate import (
     _scene_mismatch,
     _source_path,
     _warn,
-    match_prefix,
     scan_exr,
 )
 from mcdenoise.eval.metrics import ArrayLike, as_image
@@ -348,6 +348,7 @@ def evaluate_sequences(
     index = {stem: i for i, stem in enumerate(stems)}
     n = len(stems)
     span = f"{stems[0]} to {stems[-1]}" if n > 1 else stems[0]
+    frame_of = PrefixMatcher(stems)
     scene = ref_dir.resolve().parent.name if ref_dir.resolve().name == "ref" else ref_dir.name
     scene = scene or "sequence"
 
@@ -366,7 +367,7 @@ def evaluate_sequences(
         if _same_file(p, ref_dir):
             continue
         for f in scan_exr(p, what="output"):
-            hit = match_prefix(f.stem, stems)
+            hit = frame_of(f.stem)
             if hit is None:
                 raise InputError(
                     f"output {f} matches no frame of the reference sequence {ref_dir} ({span})"
@@ -523,10 +524,11 @@ def _noisy_sequences(
     """The given noisy folders of frames that cover every reference frame (matched by name),
     as (file, part, profile) per frame; a multi-part frame is read with its first part."""
     found = []
+    frame_of = PrefixMatcher(stems)
     for arg in inputs:
         by_frame: dict[int, Path] = {}
         for f in scan_exr(arg, what="noisy input"):
-            hit = match_prefix(f.stem, stems)
+            hit = frame_of(f.stem)
             if hit is not None:
                 by_frame.setdefault(index[hit], f)
         if len(by_frame) == len(stems):

@@ -123,7 +123,7 @@ def _input_levels(path: Path) -> list[Level]:
 
 
 def _inputs(root: Path, references: Path | None) -> list[SceneData]:
-    from mcdenoise.eval import match_prefix
+    from mcdenoise.eval.evaluate import PrefixMatcher
     from mcdenoise.io.atomic import TMP_PREFIX
 
     refdir = references if references is not None else root / "ref"
@@ -141,8 +141,9 @@ def _inputs(root: Path, references: Path | None) -> list[SceneData]:
     inputs = [p for p in sorted(root.glob("*.exr")) if not p.name.startswith(TMP_PREFIX)]
     if not inputs:
         raise ExperimentError(f"{root}: no *.exr input (and no manifest.json)")
+    scene_of = PrefixMatcher(refs)
     for path in inputs:
-        scene = match_prefix(path.stem, list(refs))
+        scene = scene_of(path.stem)
         if scene is None:
             raise ExperimentError(
                 f"{path}: no reference in {refdir} whose name begins its name (inputs are "

@@ -52,7 +52,7 @@ import numpy as np
 from mcdenoise.errors import ExrError, InputError, McdenoiseError
 from mcdenoise.io.atomic import atomic_path
 from mcdenoise.io.exr_messages import error_text as _error_text
-from mcdenoise.io.exr_messages import explain, readable_name
+from mcdenoise.io.exr_messages import explain, readable_name, special_file_kind
 from mcdenoise.io.limits import (  # noqa: F401  (re-exported: the limits' historic home)
     DEFAULT_MAX_PIXELS,
     MAX_PIXELS_ENV,
@@ -228,16 +228,31 @@ def _clear_global_error() -> None:
 
 
 def _check_readable(path: Path) -> None:
-    """Raise ExrError unless ``path`` is a non-empty file that starts with the EXR magic."""
-    if not path.exists():
-        raise ExrError(f"{path}: no such file")
-    if path.is_dir():
-        raise ExrError(f"{path}: is a folder, not an EXR file")
+    """Raise ExrError unless ``path`` is a non-empty regular file that starts with the EXR magic.
+
+    A named pipe, a device or a socket is refused before a byte is read (opening a FIFO waits
+    for a writer: ``info``, ``eval`` and ``denoise`` hung); it is opened non-blocking and
+    checked on the open descriptor, so it cannot be swapped in between check and read.
+    """
     try:
-        with path.open("rb") as f:
-            head = f.read(4)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as e:
+        if not path.exists():
+            raise ExrError(f"{path}: no such file") from None
+        if path.is_dir():
+            raise ExrError(f"{path}: is a folder, not an EXR file") from None
         raise ExrError(f"{path}: cannot be read ({e.strerror or e})") from None
+    kind = special_file_kind(os.fstat(fd).st_mode)
+    if kind is not None:
+        os.close(fd)
+        if kind == "a folder":
+            raise ExrError(f"{path}: is a folder, not an EXR file")
+        raise ExrError(f"{path}: is {kind}, not a regular file; refused (reading could block)")
+    with os.fdopen(fd, "rb") as f:
+        try:
+            head = f.read(4)
+        except OSError as e:
+            raise ExrError(f"{path}: cannot be read ({e.strerror or e})") from None
     if not head:
         raise ExrError(f"{path}: is empty (0 bytes), not an EXR file")
     if head != _EXR_MAGIC:

@@ -11,6 +11,7 @@ what to do about it, keeping the library's own words only where it has no transl
 from __future__ import annotations
 
 import re
+import stat
 from typing import Any
 
 #: What a user can do about a file whose bytes are damaged.
@@ -18,6 +19,26 @@ REWRITE = "write or copy the file again"
 
 _SEGMENT = re.compile(r"EXR Error \([^)]*\):\s*")
 _CODE = re.compile(r"^(EXR_ERR_[A-Z_]+)\s*")
+
+
+_SPECIAL_FILES = (
+    (stat.S_ISDIR, "a folder"),
+    (stat.S_ISFIFO, "a named pipe (FIFO)"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+)
+
+
+def special_file_kind(mode: int) -> str | None:
+    """What a file of ``st_mode`` ``mode`` is when it is not a regular file, else ``None``.
+
+    >>> import os; special_file_kind(os.stat("/dev/null").st_mode)
+    'a character device'
+    """
+    if stat.S_ISREG(mode):
+        return None
+    return next((desc for test, desc in _SPECIAL_FILES if test(mode)), "not a regular file")
 
 
 def error_text(obj: Any) -> str:

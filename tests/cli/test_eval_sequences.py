@@ -333,7 +333,8 @@ def test_a_nan_frame_fails_its_sequence_in_the_report(sequence, tmp_path):
     write_outputs(tmp_path / "out_broken", sequence["seq"], broken, "broken")
     rep = tmp_path / "rep"
     r = run_cli("eval", tmp_path / "out_broken", "--ref", sequence["ref"], "-o", rep)
-    assert r.exit_code == 0, r.output
+    # the report is written, and eval exits with 1 (--keep-going: 0; issue 33 item 7)
+    assert r.exit_code == 1 and "FAILED" in r.stderr, r.output
     assert "FAILED: 1 of 5 frames failed; 1 non-finite pixel(s)" in r.stdout
     data = json.loads((rep / "results.json").read_text())
     (rec,) = [x for x in data["records"] if x["method"] == "broken"]

@@ -255,11 +255,11 @@ def test_failed_write_leaves_no_temp_files_and_keeps_old_report(tmp_path, monkey
     calls = {"n": 0}
     real = report.write_png
 
-    def flaky(path, rgb):
+    def flaky(path, rgb, **options):
         calls["n"] += 1
         if calls["n"] == 3:
             raise KeyboardInterrupt  # e.g. Ctrl-C in the middle of the images
-        real(path, rgb)
+        real(path, rgb, **options)
 
     monkeypatch.setattr(report, "write_png", flaky)
     result2 = evaluate_arrays(ref, {"a": outputs["blurry"]}, noisy=noisy, metrics=["relmse"])
