@@ -352,6 +352,8 @@ def load_config(
     if path is not None:
         p = Path(path)
         source = str(p)
+        if p.exists() and not p.is_file():  # a named pipe would block the read
+            raise InputError(f"{p}: not a regular file; refused")
         try:
             text = p.read_text()
         except OSError as err:

@@ -234,11 +234,22 @@ def test_a_named_pipe_is_refused_not_waited_on(tmp_path, command):
     assert len(r.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
 def test_a_named_pipe_as_model_file_is_refused(tmp_path):
     fifo = tmp_path / "model.pt"
     os.mkfifo(fifo)
     with pytest.raises(CheckpointError, match="not a regular file"):
         _guarded(lambda: load_state(fifo), fifo)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
+def test_a_named_pipe_as_training_config_is_refused(tmp_path):
+    from mcdenoise.train.config import load_config
+
+    fifo = tmp_path / "train.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="not a regular file"):
+        _guarded(lambda: load_config(fifo), fifo)
 
 
 # --- eval: matching and the exit status -------------------------------------------------------
