@@ -231,14 +231,27 @@ class EvalResult:
     version: str = ""
     created: str = ""
     warmup: int | None = None
+    # scene -> its records, and the state of ``records`` it was made from (scene_records)
+    _by_scene: tuple[tuple[int, int, int], dict[str, list[EvalRecord]]] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
 
     def scenes(self) -> list[str]:
         """Scene names in first-seen order."""
         return list(dict.fromkeys([*self.references, *(r.scene for r in self.records)]))
 
     def scene_records(self, scene: str) -> list[EvalRecord]:
-        """Records of ``scene``, in order."""
-        return [r for r in self.records if r.scene == scene]
+        """Records of ``scene``, in order. The records are grouped by scene once (again when
+        ``records`` has grown or been replaced): a report asks this of every scene, and a scan
+        of every record per scene made a report of n scenes O(n²)."""
+        recs = self.records
+        state = (id(recs), len(recs), id(recs[-1]) if recs else 0)
+        if self._by_scene is None or self._by_scene[0] != state:
+            groups: dict[str, list[EvalRecord]] = {}
+            for r in recs:
+                groups.setdefault(r.scene, []).append(r)
+            self._by_scene = (state, groups)
+        return list(self._by_scene[1].get(scene, ()))
 
     @property
     def any_failed(self) -> bool:
