@@ -27,6 +27,8 @@ from typing import Any, get_type_hints
 
 from mcdenoise.errors import InputError
 from mcdenoise.losses import LOSSES as LOSS_FUNCTIONS
+from mcdenoise.modelfile import MAX_WIDTH
+from mcdenoise.models.temporal import MAX_WINDOW
 
 #: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`):
 #: those of :mod:`mcdenoise.losses`, and ``log-relmse``
@@ -204,7 +206,11 @@ class TrainConfig:
             ),
             (0 <= self.importance <= 1, f"importance must be in [0, 1], got {self.importance}"),
             (0 < self.lr_final <= 1, f"lr_final must be in (0, 1], got {self.lr_final}"),
-            (all(h >= 1 for h in self.hidden), f"hidden sizes must be >= 1, got {self.hidden}"),
+            (
+                all(1 <= h <= MAX_WIDTH for h in self.hidden),
+                f"hidden sizes must be in [1, {MAX_WIDTH}] (what a model file may hold), "
+                f"got {self.hidden}",
+            ),
             (all(v >= 1 for v in self.levels), f"levels must be spp >= 1, got {self.levels}"),
             (self.checkpoints_kept >= 1, "checkpoints_kept must be >= 1"),
             (
@@ -212,7 +218,10 @@ class TrainConfig:
                 f"kernel must be 0 (default) or an odd size >= 3, got {self.kernel}",
             ),
             (self.passes in (1, 2), f"passes must be 1 or 2, got {self.passes}"),
-            (self.window >= 1, f"window must be >= 1, got {self.window}"),
+            (
+                1 <= self.window <= MAX_WINDOW,
+                f"window must be in [1, {MAX_WINDOW}], got {self.window}",
+            ),
             (
                 self.temporal_mode in ("offline", "causal"),
                 f"temporal_mode must be offline or causal, got {self.temporal_mode!r}",
@@ -228,8 +237,9 @@ class TrainConfig:
             (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}"),
             (self.asym_slope >= 1, f"asym_slope must be >= 1, got {self.asym_slope}"),
             (
-                len(self.channels) >= 2 and all(c >= 1 for c in self.channels),
-                f"channels needs >= 2 levels of >= 1 channel, got {self.channels}",
+                2 <= len(self.channels) <= 8 and all(1 <= c <= MAX_WIDTH for c in self.channels),
+                f"channels needs 2 to 8 levels of 1 to {MAX_WIDTH} channels (what a model file "
+                f"may hold), got {self.channels}",
             ),
             (1 <= self.scales <= len(self.channels), "scales must be in [1, len(channels)]"),
             (

@@ -133,6 +133,23 @@ def test_the_issues_cards_through_the_cli_give_one_line(tmp_path):
     assert f"{kernel}: model card field 'kernel': 100001 is out of range" in r.stderr
 
 
+@pytest.mark.parametrize(
+    ("values", "named"),
+    [
+        ({"hidden": [100000]}, "hidden"),
+        ({"channels": [2048, 32]}, "channels"),
+        ({"window": 99}, "window"),
+    ],
+)
+def test_training_refuses_a_model_its_model_file_could_not_hold(values, named):
+    """The bounds of a card also bound the training config: no model is trained for hours to
+    be refused when it is loaded."""
+    from mcdenoise.train.config import make_config
+
+    with pytest.raises(InputError, match=named):
+        make_config(values)
+
+
 class Payload:
     """A class a foreign pickle refers to (as any pickled object does)."""
 
