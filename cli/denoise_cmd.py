@@ -58,8 +58,8 @@ from tqdm import tqdm
 @click.option(
     "--include-outputs",
     is_flag=True,
-    help="Also denoise the files of a folder that mcdenoise wrote (header mcdenoise:method); "
-    "by default a folder's earlier outputs are skipped, so a re-run never denoises them again.",
+    help="Also denoise a folder's files that this tool wrote (those with a mcdenoise:method "
+    "header); by default a folder's earlier outputs are skipped, so a re-run never denoises them again.",
 )
 @threads_option()
 @click.option(
