@@ -98,6 +98,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.eval.results import printable
 from mcdenoise.filters.two_buffer import (
     BLOCK,
     block_means,
@@ -468,8 +469,6 @@ def _renormalise(
     command or a method not installed here is refused (:func:`mcdenoise.registry.
     header_method`: a file never makes mcdenoise run a program), told to ``log`` in one line
     naming the file."""
-    import json
-
     from mcdenoise.io.buffers import sanitize
     from mcdenoise.registry import header_method
 
@@ -488,11 +487,12 @@ def _renormalise(
                 log(" ".join(str(err).split()))
             continue
         try:
-            params = json.loads(str(attrs.get("mcdenoise:params") or "{}"))
+            params = _header_params(attrs.get("mcdenoise:params"))
             if log is not None:
                 log(f"{f.name}: {method} on each half of its source (shared normaliser)")
             out_a, out_b = rerun(half_a, m, params), rerun(half_b, m, params)
-        except (McdenoiseError, ValueError) as err:
+        except (McdenoiseError, ValueError, TypeError) as err:
+            # TypeError: a header's parameter of the wrong JSON type (features = 5)
             row["note"] = (
                 f"own normaliser: {method} did not run again: {' '.join(str(err).split())}"
             )
@@ -504,6 +504,23 @@ def _renormalise(
             normaliser=shared,
             note=f"header value {float(row['relmse_estimated']):.4g} ({row['normaliser']})",
         )
+
+
+def _header_params(text: Any) -> dict[str, Any]:
+    """The parameters an output's header records (``mcdenoise:params``): a JSON object, or
+    ``ValueError`` in one line (a file may come from anyone: a list, a string or JSON nested
+    past Python's recursion limit is refused, not an internal error)."""
+    import json
+
+    try:
+        params = json.loads(str(text or "{}"))
+    except RecursionError:
+        raise ValueError("header mcdenoise:params is nested too deeply") from None
+    if not isinstance(params, dict):
+        raise ValueError(
+            f"header mcdenoise:params is not a JSON object (a {type(params).__name__})"
+        )
+    return params
 
 
 def _noisy_row(src: str, fb: FeatureBuffers | None) -> dict[str, Any]:
@@ -536,7 +553,8 @@ def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
         unc = f"{se:10.2g}" if se is not None else f"{'':>10s}"
         spp = str(r["spp"]) if r["spp"] is not None else "-"
         note = "; ".join(x for x in (r.get("normaliser") or "", r["note"]) if x)
-        lines.append(f"{r['scene']:28s} {spp:>5s} {r['method']:18s} {val} {unc}  {note}")
+        scene, method = printable(str(r["scene"])), printable(str(r["method"]))
+        lines.append(f"{scene:28s} {spp:>5s} {method:18s} {val} {unc}  {note}")
     return "\n".join(lines)
 
 

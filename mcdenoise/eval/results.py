@@ -366,8 +366,17 @@ class EvalResult:
         )
 
 
+def printable(text: str) -> str:
+    """``text`` for one line of a terminal table: control characters (a newline or an escape
+    sequence a file's header may hold as its method or scene) as Python escapes."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def _align(rows: list[list[str]], *, last_free: bool = True) -> str:
     """Rows of cells as left-aligned columns (the last column unpadded when ``last_free``)."""
+    rows = [[printable(c) for c in row] for row in rows]
     n = len(rows[0]) - (1 if last_free else 0)
     widths = [max(len(row[i]) for row in rows) for i in range(n)]
     lines = []

@@ -158,6 +158,65 @@ def test_a_header_method_is_only_ever_an_installed_one() -> None:
         assert "\n" not in str(err.value)
 
 
+def _set_header(path: Path, **strings: str) -> None:
+    """Header strings set verbatim (not JSON-encoded): what a hand-edited file can hold."""
+    img = read_exr(path)
+    attrs = {k: v for k, v in img.part.attributes.items() if k.startswith("mcdenoise:")}
+    attrs.update({"mcdenoise:" + k: v for k, v in strings.items()})
+    write_exr(path, dict(img.pixels), attributes=attrs)
+
+
+@pytest.mark.parametrize(
+    ("params", "why"),
+    [
+        ("[1, 2]", "not a JSON object (a list)"),
+        ('"text"', "not a JSON object (a str)"),
+        ("[" * 100_000, "nested too deeply"),
+        ('{"features": 5}', "not iterable"),
+    ],
+)
+def test_an_output_header_with_odd_params_is_a_note_not_an_internal_error(
+    tmp_path: Path, params: str, why: str
+) -> None:
+    """``mcdenoise:params`` that is JSON but not an object, nested past the recursion limit,
+    or of the wrong type for a parameter: the row keeps its header value with a note saying
+    why it did not run again (was: internal error, exit 1, no report)."""
+    src = _noisy_with_halves(tmp_path / "in.exr")
+    out = tmp_path / "out"
+    args = ["denoise", str(src), "-m", "nlm,cross-bilateral", "--estimate-error", "-o", str(out)]
+    assert CliRunner().invoke(main, [*args, "--threads", "1"]).exit_code == 0
+    _set_header(out / "in_nlm.exr", params=params)
+    r = CliRunner().invoke(main, ["eval", str(out), "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 0, r.output
+    assert "internal error" not in r.output and "Traceback" not in r.output
+    rows = json.loads((tmp_path / "rep" / "estimate.json").read_text(encoding="utf-8"))["rows"]
+    note = {row["method"]: row["note"] for row in rows}["nlm"]
+    assert note.startswith("own normaliser: nlm did not run again: ") and why in note
+
+
+def test_a_header_method_with_control_characters_keeps_the_table_one_line_a_row(
+    tmp_path: Path,
+) -> None:
+    """A method name with a newline or a terminal escape (a hand-edited header) is shown
+    escaped in the tables of ``eval`` with and without ``--ref``: one line per row."""
+    src = _noisy_with_halves(tmp_path / "in.exr")
+    out = tmp_path / "out"
+    args = ["denoise", str(src), "-m", "nlm,cross-bilateral", "--estimate-error", "-o", str(out)]
+    assert CliRunner().invoke(main, [*args, "--threads", "1"]).exit_code == 0
+    name = "nlm\ncmd:touch MARKER {output}\x1b[2J"
+    _set_header(out / "in_nlm.exr", method=name)
+    r = CliRunner().invoke(main, ["eval", str(out), "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 0, r.output
+    row = [ln for ln in r.stdout.splitlines() if "cmd:touch" in ln]
+    assert len(row) == 1 and row[0].split()[2] == "nlm\\ncmd:touch", r.stdout
+    r = CliRunner().invoke(
+        main, ["eval", "--ref", str(src), str(out / "in_nlm.exr"), "-o", str(tmp_path / "r2")]
+    )
+    assert r.exit_code == 0, r.output
+    row = [ln for ln in r.stdout.splitlines() if "cmd:touch" in ln]
+    assert len(row) == 1 and "\\x1b[2J" in row[0] and "\x1b" not in row[0], r.stdout
+
+
 # --- 1/2. no program runs before the user asks for a denoise that needs it -------------------
 
 
