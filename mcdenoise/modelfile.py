@@ -310,6 +310,8 @@ def _load_refusal(p: Path, err: Exception) -> str:
         first = text.splitlines()[0] if text else type(err).__name__
     if "weights_only" in first or "Weights only" in first:
         first = "not pickle data torch can read"
+    # torch's own request for reports ("(Could this error message be improved? ...)")
+    first = re.sub(r"\s*\(?Could this error message be improved\?.*$", "", first) or "?"
     return f"{p}: truncated or corrupt file ({first})"
 
 

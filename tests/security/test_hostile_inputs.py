@@ -198,6 +198,22 @@ def test_garbage_and_plain_pickles_are_named_without_torch_advice(tmp_path):
         assert expected in message and "weights_only" not in message and "\n" not in message
 
 
+def test_a_zip_that_is_not_a_torch_archive_is_named_without_torch_asking_for_reports(tmp_path):
+    """A zip with a ``.pkl`` record but no torch archive layout: torch's message ends with
+    "(Could this error message be improved? If so, please report an enhancement request to
+    PyTorch.)", which is not ours to show (review of issue 33 item 7)."""
+    import zipfile
+
+    path = tmp_path / "zip.pt"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("a/data.pkl", b"garbage")
+    with pytest.raises(CheckpointError) as info:
+        load_state(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: truncated or corrupt file (") and message.endswith(")")
+    assert "PyTorch" not in message and "improved" not in message and "\n" not in message
+
+
 # --- named pipes ------------------------------------------------------------------------------
 
 
