@@ -287,6 +287,11 @@ def refuse_overwriting_inputs(inputs: Sequence[Path], planned: Sequence[tuple[Pa
             with contextlib.suppress(OSError):
                 st = out.stat()
                 hit = by_inode.get((st.st_dev, st.st_ino))
+        if hit is not None and hit == src:  # -o names the input itself (or a link to it)
+            raise InputError(
+                f"{src}: its output {out} would overwrite this input; nothing was written: "
+                "give -o another file name or a folder"
+            )
         if hit is not None:
             raise InputError(
                 f"{hit} is an input of this batch and the output of {src} would overwrite it; "

@@ -289,6 +289,26 @@ def test_a_batch_never_writes_over_its_own_inputs(tmp_path, box):
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a_box.exr", "a_box_box.exr"]
 
 
+def test_an_output_named_as_its_own_input_is_refused_in_plain_words(tmp_path, box):
+    """``denoise a.exr -o a.exr`` (or ``-o ./coll/../coll/a.exr``, or a link to it): one line
+    naming the file and saying to choose another name, not "write the outputs into another
+    folder" (review of issue 33 item 4)."""
+    coll = tmp_path / "coll"
+    coll.mkdir()
+    noisy_input(coll / "a.exr", seed=1)
+    (tmp_path / "link.exr").symlink_to(coll / "a.exr")
+    before = (coll / "a.exr").read_bytes()
+    for out in (coll / "a.exr", tmp_path / "coll" / ".." / "coll" / "a.exr", tmp_path / "link.exr"):
+        r = run("denoise", coll / "a.exr", "-m", box, "-o", out)
+        assert r.exit_code == 1, r.output
+        err = r.stderr.strip()
+        assert len(err.splitlines()) == 1 and err.startswith(
+            f"mcdenoise: error: {coll / 'a.exr'}: "
+        )
+        assert "would overwrite this input" in err and "another file name or a folder" in err
+        assert (coll / "a.exr").read_bytes() == before
+
+
 def test_a_folder_scan_skips_the_tools_own_outputs(tmp_path, box):
     coll = tmp_path / "coll"
     coll.mkdir()
