@@ -22,7 +22,13 @@ pyoidn, HDR, the file's own noisy albedo and normal, OIDN's internal prefilter).
     prefiltering auxiliary images; ``quality=high``, 1 thread), their variance buffers dropped
     (so ``full``-source inputs call them clean), ``prefilter=off``. A diagnostic only: the
     shipped method must not need OIDN. Depth and position stay as written (OIDN has no filter
-    for them; the plain ``aov`` files' ``basic`` source does not use them).
+    for them; the plain ``aov`` files' ``basic`` source does not use them). OIDN takes albedo
+    in [0, 1], but Mitsuba's albedo of glossy lobes exceeds 1 (up to 437 on
+    ``metals_rough``; 1.5-3.4 % of the pixels of the metal, neon, city and depth-of-field
+    scenes), and ``kpcn`` demodulates by it as it is: the part above 1 is added back to OIDN's
+    output unfiltered.
+``oidn-aux-clamp``
+    the same with OIDN's output as it is (albedo clamped to [0, 1], as OIDN itself sees it).
 
 Also recorded per image: the mean squared error of the noisy and the OIDN-filtered albedo and
 normal against the reference's, and the seconds of each OIDN auxiliary filter and of each
@@ -71,7 +77,9 @@ VARIANTS = {
     "ref": "reference albedo, normal, depth, position; prefilter=off (the bound)",
     "ref-albedo": "reference albedo only; the rest as shipped",
     "ref-normal": "reference normal only; the rest as shipped",
-    "oidn-aux": "albedo and normal prefiltered by OIDN's aux filters; prefilter=off",
+    "oidn-aux": "albedo and normal prefiltered by OIDN's aux filters (albedo above 1 added "
+    "back); prefilter=off",
+    "oidn-aux-clamp": "oidn-aux with the albedo clamped to [0, 1] as OIDN sees it",
 }
 
 
@@ -138,9 +146,19 @@ def measure_item(
     b = load_buffers(item.path, part=item.part)
     ref = load_buffers(item.reference)
     mp = b.height * b.width / 1e6
+
+    def aux_mse(n: str, x: torch.Tensor) -> float:
+        """MSE against the reference's ``n``; albedo clamped to [0, 1] on both sides (what a
+        prefilter of OIDN's kind addresses; the few glossy-lobe values above 1 would decide
+        it otherwise)."""
+        y = ref[n]
+        if n == "albedo":
+            x, y = x.clamp(0, 1), y.clamp(0, 1)
+        return float((x - y).double().square().mean())
+
     for n in OIDN_AUX:
         if n in b and n in ref:
-            extra[f"{n}_mse_noisy"] = float((b[n] - ref[n]).double().square().mean())
+            extra[f"{n}_mse_noisy"] = aux_mse(n, b[n])
     builds: dict[str, Callable[[], tuple[FeatureBuffers, str] | str]] = {}
     builds["off"] = lambda: (b, "off")
     builds["ref"] = lambda: (from_ref(b, ref, REF_FEATURES), "off")
@@ -149,21 +167,28 @@ def measure_item(
             (from_ref(b, ref, [n]), "adaptive") if n in ref else f"reference has no {n}"
         )
 
-    def oidn_aux() -> tuple[FeatureBuffers, str] | str:
+    filtered: dict[str, torch.Tensor] = {}
+
+    def oidn_aux(clamped: bool) -> tuple[FeatureBuffers, str] | str:
         assert aux is not None
-        new = {}
-        for n in OIDN_AUX:
-            if n not in b:
-                continue
-            new[n], commit, execute = aux(n, b[n])
-            extra[f"oidn_{n}_commit_seconds"] = commit
-            extra[f"oidn_{n}_seconds"] = execute
-            extra[f"oidn_{n}_s_per_mp"] = execute / mp
+        if not filtered:  # once per item for both variants
+            for n in OIDN_AUX:
+                if n not in b:
+                    continue
+                filtered[n], commit, execute = aux(n, b[n])
+                extra[f"oidn_{n}_commit_seconds"] = commit
+                extra[f"oidn_{n}_seconds"] = execute
+                extra[f"oidn_{n}_s_per_mp"] = execute / mp
+        new = dict(filtered)
+        for n in new:
             if n in ref:
-                extra[f"{n}_mse_oidn"] = float((new[n] - ref[n]).double().square().mean())
+                extra[f"{n}_mse_oidn"] = aux_mse(n, new[n])
+        if not clamped and "albedo" in new:
+            new["albedo"] = new["albedo"] + (b["albedo"] - b["albedo"].clamp(0, 1))
         return with_buffers(b, new, drop=[f"{n}_var" for n in OIDN_AUX]), "off"
 
-    builds["oidn-aux"] = oidn_aux
+    builds["oidn-aux"] = lambda: oidn_aux(clamped=False)
+    builds["oidn-aux-clamp"] = lambda: oidn_aux(clamped=True)
     for v in variants:
         if v == "shipped":
             k = bench_ood.value(rows, item.set, item.image, item.spp, SHIPPED)
@@ -216,8 +241,14 @@ def tables(
         if not images:
             continue
         sound = [i for i in images if all((set_, i, s) not in broken for s in levels)]
+        # the scenes every variant ran on (so that the means compare like with like)
+        common = [i for i in sound
+                  if all(ratio(rows, (set_, i, s), v) is not None for v in variants for s in levels)]  # fmt: skip
+        left = [i.removeprefix("ood_") for i in sound if i not in common]
         lines += [f"### `{set_}`: `kpcn` relMSE / OIDN's, geometric mean over the "
-                  f"{len(sound)} scenes where OIDN is sound", "",
+                  f"{len(common)} scenes where OIDN is sound and every variant ran"
+                  + (f" (not {', '.join(left)}; [n: x] is the mean over the n sound scenes "
+                     "the variant ran on)" if left else ""), "",
                   "| variant | " + " | ".join(f"{s} spp" for s in levels)
                   + " | worst scene, 4 spp | kpcn s/MP |",
                   "|---|" + "---|" * (len(levels) + 2)]  # fmt: skip
@@ -225,15 +256,17 @@ def tables(
         for v in variants:
             cells, per = [], {}
             for s in levels:
-                rs = [ratio(rows, (set_, i, s), v) for i in sound]
-                ok = [x for x in rs if x is not None]
-                g = geometric_mean(ok) if ok else None
-                per[str(s)] = {"ratio": g, "scenes": len(ok)}
+                rs = [ratio(rows, (set_, i, s), v) for i in common]
+                g = geometric_mean(rs) if common else None
+                ok = [x for x in (ratio(rows, (set_, i, s), v) for i in sound) if x is not None]
+                g_ran = geometric_mean(ok) if ok else None
+                per[str(s)] = {"ratio": g, "scenes": len(common), "ratio_ran": g_ran,
+                               "scenes_ran": len(ok)}  # fmt: skip
                 c = bench_ood.fmt(g, ".2f")
-                if len(ok) < len(sound):
-                    c += f" ({len(ok)} scenes)"
+                if len(ok) > len(common):
+                    c += f" [{len(ok)}: {bench_ood.fmt(g_ran, '.2f')}]"
                 cells.append(c)
-            first = [(ratio(rows, (set_, i, levels[0]), v), i) for i in sound]
+            first = [(ratio(rows, (set_, i, levels[0]), v), i) for i in common]
             first = [(x, i) for x, i in first if x is not None]
             worst = max(first) if first else (None, "-")
             secs = [r.s_per_mp for r in rows if r.set == set_ and r.method == v and r.s_per_mp]
@@ -263,7 +296,7 @@ def tables(
         lines += [f"#### `{set_}`: auxiliary MSE against the reference's (noisy → OIDN "
                   "aux filter), mean over scenes, and OIDN aux filter seconds per megapixel "
                   "(`execute`, median; 1 thread)", "",
-                  "| spp | albedo MSE | normal MSE | OIDN albedo s/MP | OIDN normal s/MP |",
+                  "| spp | albedo MSE (in [0, 1]) | normal MSE | OIDN albedo s/MP | OIDN normal s/MP |",
                   "|---|---|---|---|---|"]  # fmt: skip
         for s in levels:
             es = [extra.get(f"{set_}/{i}/{s}", {}) for i in images]
@@ -273,8 +306,9 @@ def tables(
                 return statistics.fmean(xs) if xs else None
 
             def pair(n: str, mean: Callable[[str], float | None] = mean) -> str:
-                return (f"{bench_ood.fmt(mean(f'{n}_mse_noisy'), '.5f')} → "
+                text = (f"{bench_ood.fmt(mean(f'{n}_mse_noisy'), '.5f')} → "
                         f"{bench_ood.fmt(mean(f'{n}_mse_oidn'), '.5f')}")  # fmt: skip
+                return text
 
             def median(key: str, es: list[dict[str, Any]] = es) -> str:
                 xs = [e[key] for e in es if e.get(key) is not None]
@@ -316,7 +350,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         commit = old.get("commit")
     todo = [] if args.from_json else [
         it for s in sets for it in bench_ood.items_of(args.data, s, levels, scenes)]  # fmt: skip
-    aux = OidnAux() if "oidn-aux" in variants and todo else None
+    aux = OidnAux() if any(v.startswith("oidn-aux") for v in variants) and todo else None
     print(f"{len(todo)} items in {', '.join(sets)}; variants {', '.join(variants)}", flush=True)
     t0 = time.perf_counter()
     for n, it in enumerate(todo, 1):
