@@ -34,7 +34,11 @@ def spec_commands(
             out.append((where, text))
 
     ext = top.get("external", [])
-    for i, entry in enumerate([ext] if isinstance(ext, Mapping) else ext):
+    if isinstance(ext, Mapping):
+        ext = [ext]
+    elif not isinstance(ext, Sequence) or isinstance(ext, str):
+        ext = []  # external = 5: malformed, the parser says so
+    for i, entry in enumerate(ext):
         if isinstance(entry, Mapping) and isinstance(entry.get("command"), str):
             name = entry.get("name")
             where = f"external[{i}]" + (f" {name!r}" if isinstance(name, str) else "")

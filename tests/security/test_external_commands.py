@@ -310,6 +310,20 @@ def test_a_spec_that_runs_programs_loads_with_allow_commands_and_still_runs_noth
     assert not marker.exists()  # parsed, registered, params checked: no --version probe
 
 
+@pytest.mark.parametrize("value", ["5", '"x"', "true", "[5]"])
+def test_a_spec_whose_external_is_not_a_list_of_tables_is_one_line(
+    tmp_path: Path, value: str
+) -> None:
+    """``external = 5`` (not a list of tables): the command listing skips it and the parser
+    names it, instead of an internal error (review of issue 33 item 2)."""
+    spec = tmp_path / "exp.toml"
+    spec.write_text(f"external = {value}\n[scenes]\nrandom = 1\n", encoding="utf-8")
+    r = CliRunner().invoke(main, ["eval", "--experiment", str(spec), "-o", str(tmp_path / "o")])
+    assert r.exit_code == 1 and "internal error" not in r.output, r.output
+    assert r.stderr.strip().startswith(f"mcdenoise: error: {spec}: external")
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
 def test_allow_commands_is_refused_without_an_experiment(tmp_path: Path) -> None:
     r = CliRunner().invoke(main, ["eval", str(tmp_path), "--allow-commands"])
     assert r.exit_code == 2 and "--allow-commands applies to --experiment" in r.output
