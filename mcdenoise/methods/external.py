@@ -31,11 +31,13 @@ happens to exist (``--mode blur`` beside a file ``blur``).
 
 The command dies with mcdenoise: on Linux the kernel kills it (``SIGKILL``) when the thread
 that started it ends, a ``kill -9`` of mcdenoise included (``PR_SET_PDEATHSIG``, set by
-``setpriv`` or else before ``exec``: :func:`_with_parent`); its own children are ended with it
-at a timeout or Ctrl-C (it runs in a session of its own), not at a ``kill -9``. The temporary folders of commands whose mcdenoise process is gone
+``setpriv`` or else before ``exec``: :func:`_with_parent`). It runs in a session of its own,
+so what it started is ended with it: at a timeout or Ctrl-C by mcdenoise, at a ``kill -9`` of
+mcdenoise by a watcher process that waits on a pipe only mcdenoise holds
+(:func:`_group_watcher`). The temporary folders of commands whose mcdenoise process is gone
 (``mcdenoise-cmd-<pid>-*``), and any older than an hour without a recorded process, are
-removed before the next command runs, and a program the killed command had started, still
-working in its folder, is ended then (:func:`sweep_stale_folders`).
+removed before the next command runs, and a program still working in such a folder (one that
+left the command's process group) is ended then (:func:`sweep_stale_folders`).
 
 The command gets mcdenoise's environment plus the thread count it runs with
 (``MCDENOISE_THREADS``, and ``OMP_NUM_THREADS`` unless set): :func:`command_env`.
@@ -56,6 +58,7 @@ looked up): only when the method's parameters are first read for a denoise that 
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import os
@@ -357,6 +360,7 @@ def run_command(
             start_new_session=True,  # the timeout ends the command's own children too
             preexec_fn=preexec,  # (or the launcher) a kill -9 of mcdenoise ends the command
         )
+        watcher = _group_watcher(proc.pid)
         try:
             _, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -369,6 +373,8 @@ def run_command(
             _kill(proc)
             proc.wait()
             raise
+        finally:
+            _stop_watcher(watcher)
         if proc.returncode != 0:
             raise InputError(_failure(template, f"exited with status {proc.returncode}", err))
         try:
@@ -553,6 +559,51 @@ def sweep_stale_folders(root: str | os.PathLike[str] | None = None) -> list[Path
 def _sweep_once() -> None:
     """:func:`sweep_stale_folders`, once per process (before its first command)."""
     sweep_stale_folders()
+
+
+def _group_watcher(pgid: int) -> tuple[subprocess.Popen[bytes], int] | None:
+    """A process that ends the command's whole process group if mcdenoise dies first.
+
+    The parent-death signal (:func:`_with_parent`) reaches the command itself, not what the
+    command started (a script's own program, a GPU binary under a wrapper), which would
+    otherwise run on after a ``kill -9`` of mcdenoise. The watcher, a ``sh`` in a session of
+    its own, blocks reading a pipe whose only writing end mcdenoise holds; the kernel closes
+    that end when mcdenoise dies however it dies, the read returns, and the watcher sends
+    ``SIGKILL`` to the group (the command runs in its own session, so the group is the
+    command and everything it started that did not leave it). On a normal end
+    :func:`_stop_watcher` kills the watcher before closing the pipe, so nothing is sent.
+    ``None`` where there is no ``sh`` or no process groups (the command then still dies
+    with mcdenoise; what it started may not). Costs one ``sh`` start (~1 ms).
+    """
+    sh = shutil.which("sh")
+    if sh is None or not hasattr(os, "killpg"):
+        return None
+    read_end, write_end = os.pipe()  # neither end is inherited by other children
+    try:
+        watcher = subprocess.Popen(
+            [sh, "-c", 'read _ignored; kill -KILL "-$0" 2>/dev/null', str(pgid)],
+            stdin=read_end,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,  # a Ctrl-C to mcdenoise's group does not end it first
+        )
+    except OSError:
+        os.close(write_end)
+        return None
+    finally:
+        os.close(read_end)
+    return watcher, write_end
+
+
+def _stop_watcher(watcher: tuple[subprocess.Popen[bytes], int] | None) -> None:
+    """End the watcher of a command that finished (or was ended) while mcdenoise lives."""
+    if watcher is None:
+        return
+    proc, write_end = watcher
+    with contextlib.suppress(OSError):
+        proc.kill()
+    proc.wait()
+    os.close(write_end)
 
 
 def _kill(proc: subprocess.Popen[str]) -> None:
