@@ -573,7 +573,8 @@ def _group_watcher(pgid: int) -> tuple[subprocess.Popen[bytes], int] | None:
     command and everything it started that did not leave it). On a normal end
     :func:`_stop_watcher` kills the watcher before closing the pipe, so nothing is sent.
     ``None`` where there is no ``sh`` or no process groups (the command then still dies
-    with mcdenoise; what it started may not). Costs one ``sh`` start (~1 ms).
+    with mcdenoise; what it started may not). Costs one ``sh`` start and stop: 0.3 ms at best,
+    4.5 ms median, in a process holding torch on 2 busy cores.
     """
     sh = shutil.which("sh")
     if sh is None or not hasattr(os, "killpg"):
