@@ -22,19 +22,29 @@ Param = float | Tensor
 Features = Sequence[Tensor] | Mapping[str, Tensor]
 
 
+#: The largest window edge a filter takes (radius 64). A window's cost grows with its area,
+#: so a parameter from someone else's file (an output header re-run by ``eval``) or a typo
+#: of ``1e26`` would otherwise run for hours or exhaust memory; the shipped methods use 3-21.
+MAX_WINDOW = 129
+
+
 def check_kernel_size(value: object, name: str = "kernel_size") -> int:
-    """An odd positive integer window size."""
+    """An odd positive integer window size, at most :data:`MAX_WINDOW`."""
     if isinstance(value, bool) or not isinstance(value, int):
         raise InputError(f"{name} must be an odd positive integer, got {value!r}")
     if value < 1 or value % 2 == 0:
         raise InputError(f"{name} must be an odd positive integer, got {value}")
+    if value > MAX_WINDOW:
+        raise InputError(f"{name} must be at most {MAX_WINDOW}, got {value}")
     return value
 
 
 def check_radius(value: object, name: str) -> int:
-    """A non-negative integer radius (window ``2 r + 1``)."""
+    """A non-negative integer radius (window ``2 r + 1``), at most ``MAX_WINDOW // 2``."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise InputError(f"{name} must be a non-negative integer, got {value!r}")
+    if value > MAX_WINDOW // 2:
+        raise InputError(f"{name} must be at most {MAX_WINDOW // 2}, got {value}")
     return value
 
 

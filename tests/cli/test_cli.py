@@ -208,7 +208,9 @@ def test_bad_parameters(tmp_path, param):
     assert not list(tmp_path.glob(TMP_PREFIX + "*"))
 
 
-@pytest.mark.parametrize("param", ["search_radius=-1", "k=0", "k=-2", "patch_radius=-1"])
+@pytest.mark.parametrize(
+    "param", ["search_radius=-1", "k=0", "k=-2", "patch_radius=-1", "search_radius=100000"]
+)
 def test_bad_nlm_parameters(tmp_path, param):
     src = make_noisy(tmp_path / "n.exr")
     msg = one_line_error(

@@ -173,6 +173,9 @@ def _set_header(path: Path, **strings: str) -> None:
         ('"text"', "not a JSON object (a str)"),
         ("[" * 100_000, "nested too deeply"),
         ('{"features": 5}', "not iterable"),
+        # a window of 2e26 pixels: ran for hours before the filters bounded their windows
+        ('{"search_radius": 99999999999999999999999999}', "search_radius must be at most 64"),
+        ('{"patch_radius": 100}', "patch_radius must be at most 64"),
     ],
 )
 def test_an_output_header_with_odd_params_is_a_note_not_an_internal_error(
