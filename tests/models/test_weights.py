@@ -91,3 +91,20 @@ def test_shipped_kpcn_loads_and_denoises_both_sources(samples_dir) -> None:
     assert best_method(b).name == "kpcn"
     assert best_method(b.subset(["color", "albedo", "normal"])).name == "kpcn"
     assert best_method(b.subset(["color", "albedo"])).name == "nlm"  # kpcn needs the normal
+
+
+def test_every_shipped_model_file_names_its_own_method() -> None:
+    """``denoise --model FILE`` without ``--method`` runs the method the file's card names:
+    every shipped file, nnao's included (it was taken for a Kalantari file and refused)."""
+    from mcdenoise.models.weights import model_method
+
+    folder = shipped_model_path("kpcn").parent
+    got = {p.stem: model_method(p) for p in sorted(folder.glob("*.pt"))}
+    assert got == {
+        "kalantari-nlm": "kalantari-nlm",
+        "kalantari-xbf-noalbedo": "kalantari-xbf",
+        "kalantari-xbf": "kalantari-xbf",
+        "kpcn-temporal": "kpcn-temporal",
+        "kpcn": "kpcn",
+        "nnao": "nnao",
+    }

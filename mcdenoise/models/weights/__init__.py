@@ -18,6 +18,7 @@ from mcdenoise.modelfile import CheckpointError, model_file, read_card
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.kpcn import FORMAT as KPCN_FORMAT
 from mcdenoise.models.kpcn import KpcnModel
+from mcdenoise.models.nnao import FORMAT as NNAO_FORMAT
 from mcdenoise.models.temporal import FORMAT as TEMPORAL_FORMAT
 from mcdenoise.models.temporal import TemporalKpcn
 
@@ -103,11 +104,13 @@ def load_kpcn_temporal(path: str | os.PathLike[str]) -> TemporalKpcn:
 
 
 def model_method(path: str | os.PathLike[str]) -> str:
-    """The method a model file belongs to: ``kpcn``, ``kpcn-temporal``, ``kalantari-xbf`` or
-    ``kalantari-nlm``."""
+    """The method a model file belongs to: ``kpcn``, ``kpcn-temporal``, ``nnao``,
+    ``kalantari-xbf`` or ``kalantari-nlm``."""
     card = read_card(path)
     if card.get("format") == KPCN_FORMAT:
         return "kpcn"
     if card.get("format") == TEMPORAL_FORMAT:
         return "kpcn-temporal"
+    if card.get("format") == NNAO_FORMAT:
+        return "nnao"
     return f"kalantari-{card.get('kind', 'xbf')}"
