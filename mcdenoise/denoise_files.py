@@ -258,9 +258,17 @@ def plan_outputs(
         folders = [p.parent for p in inputs]
     tag = f"_{part}" if part else ""
     outs = [f / f"{p.stem}{tag}_{method_name}.exr" for f, p in zip(folders, inputs)]
-    if len(set(outs)) != len(outs):
-        raise InputError("two inputs would write the same output name; use separate folders")
+    _refuse_same_output(outs, inputs)
     return outs
+
+
+def _refuse_same_output(outs: Sequence[Path], inputs: Sequence[Path]) -> None:
+    """One line naming the first two inputs whose outputs would have the same name."""
+    first: dict[Path, Path] = {}
+    for out, src in zip(outs, inputs):
+        if out in first:
+            raise InputError(f"{first[out]} and {src} would both write {out}; use separate folders")
+        first[out] = src
 
 
 def _entry(path: Path) -> str:
@@ -556,7 +564,6 @@ def plan_sequences(
         jobs.append(
             SequenceJob(source, tuple(paths), tuple(outs), m, tuple(f.number for f in frames))
         )
-    outs = [o for j in jobs for o in j.outputs]
-    if len(set(outs)) != len(outs):
-        raise InputError("two inputs would write the same output name; use separate folders")
+    pairs = [(o, Path(i)) for j in jobs for o, i in zip(j.outputs, j.inputs)]  # not skipped
+    _refuse_same_output([o for o, _ in pairs], [i for _, i in pairs])
     return jobs

@@ -405,8 +405,11 @@ def load_weights(module: torch.nn.Module, state: dict[str, Any], path: Path) -> 
     try:
         module.load_state_dict(state)
     except RuntimeError as err:
-        first = str(err).splitlines()[0]
-        raise InputError(f"{path}: weights do not match the model card ({first})") from None
+        lines = [ln.strip() for ln in str(err).splitlines() if ln.strip()]
+        # torch's first line is a heading ("Error(s) in loading state_dict for X:"); the
+        # next says what differs (missing or unexpected keys, a shape mismatch)
+        detail = " ".join(lines[:2])[:300]
+        raise InputError(f"{path}: weights do not match the model card ({detail})") from None
 
 
 __all__ = [

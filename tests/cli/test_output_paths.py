@@ -139,3 +139,14 @@ def test_denoise_output_next_to_input_needs_no_o(here: Path) -> None:
     shutil.copy(NOISY, here / "n.exr")
     r = run("denoise", "n.exr", "-m", "nlm")
     assert r.exit_code == 0 and r.stdout.startswith("n_nlm.exr")
+
+
+def test_two_inputs_of_one_name_are_named_when_their_outputs_would_collide(here: Path) -> None:
+    """``a/x.exr`` and ``b/x.exr`` into one ``-o`` folder would both write ``x_nlm.exr``: the
+    one-line refusal names both inputs and the output, and nothing is written."""
+    for sub in ("a", "b"):
+        (here / sub).mkdir()
+        shutil.copy(NOISY, here / sub / "x.exr")
+    err = one_line_error(run("denoise", "a/x.exr", "b/x.exr", "-o", "out", "-m", "nlm"))
+    assert "a/x.exr and b/x.exr would both write out/x_nlm.exr" in err, err
+    assert not (here / "out").exists() or not list((here / "out").iterdir())
