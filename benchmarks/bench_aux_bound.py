@@ -19,10 +19,11 @@ pyoidn, HDR, the file's own noisy albedo and normal, OIDN's internal prefilter).
 ``oidn-aux``
     albedo and normal prefiltered by OIDN's own networks (the ``RT`` filter with only the
     ``albedo``, resp. ``normal``, image set and an ``output``: OIDN's documented way of
-    prefiltering auxiliary images; ``quality=high``, 1 thread), their variance buffers dropped
-    (so ``full``-source inputs call them clean), ``prefilter=off``. A diagnostic only: the
-    shipped method must not need OIDN. Depth and position stay as written (OIDN has no filter
-    for them; the plain ``aov`` files' ``basic`` source does not use them). OIDN takes albedo
+    prefiltering auxiliary images; ``quality=high``, 1 thread) with a zero variance buffer
+    each (so the shipped ``adaptive`` prefilter leaves them as they are, to 1e-6, and the
+    ``full`` source's inputs call them clean), depth and position prefiltered as shipped (OIDN
+    has no filter for them; the plain ``aov`` files' ``basic`` source does not use them). A
+    diagnostic only: the shipped method must not need OIDN. OIDN takes albedo
     in [0, 1], but Mitsuba's albedo of glossy lobes exceeds 1 (up to 437 on
     ``metals_rough``; 1.5-3.4 % of the pixels of the metal, neon, city and depth-of-field
     scenes), and ``kpcn`` demodulates by it as it is: the part above 1 is added back to OIDN's
@@ -38,6 +39,7 @@ rows, the sound-baseline rule and the metrics are ``bench_ood``'s.
     python benchmarks/bench_aux_bound.py [--data data/generated/ood] [--sets aov256,r256]
         [--levels 4,16,64] [--variants shipped,off,ref,ref-albedo,ref-normal,oidn-aux]
         [--scenes a,b] [--json OUT] [--markdown OUT] [--from-json RUN.json]
+    python benchmarks/bench_aux_bound.py --speed 3 --scenes dof_extreme --levels 4
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ VARIANTS = {
     "ref-albedo": "reference albedo only; the rest as shipped",
     "ref-normal": "reference normal only; the rest as shipped",
     "oidn-aux": "albedo and normal prefiltered by OIDN's aux filters (albedo above 1 added "
-    "back); prefilter=off",
+    "back), zero variance; depth and position prefiltered as shipped",
     "oidn-aux-clamp": "oidn-aux with the albedo clamped to [0, 1] as OIDN sees it",
 }
 
@@ -119,11 +121,9 @@ class OidnAux:
         return torch.from_numpy(out).permute(2, 0, 1).contiguous(), t1 - t0, t2 - t1
 
 
-def with_buffers(b: FeatureBuffers, new: Mapping[str, torch.Tensor], drop: Sequence[str] = ()):
-    """A copy of ``b`` with ``new`` buffers set and ``drop`` removed."""
-    bufs = {k: v for k, v in b.buffers.items() if k not in drop}
-    bufs.update(new)
-    return dataclasses.replace(b, buffers=bufs)
+def with_buffers(b: FeatureBuffers, new: Mapping[str, torch.Tensor]) -> FeatureBuffers:
+    """A copy of ``b`` with ``new`` buffers set."""
+    return dataclasses.replace(b, buffers={**b.buffers, **new})
 
 
 def from_ref(b: FeatureBuffers, ref: FeatureBuffers, names: Sequence[str]) -> FeatureBuffers:
@@ -185,7 +185,9 @@ def measure_item(
                 extra[f"{n}_mse_oidn"] = aux_mse(n, new[n])
         if not clamped and "albedo" in new:
             new["albedo"] = new["albedo"] + (b["albedo"] - b["albedo"].clamp(0, 1))
-        return with_buffers(b, new, drop=[f"{n}_var" for n in OIDN_AUX]), "off"
+        for n in list(new):
+            new[f"{n}_var"] = torch.zeros_like(new[n][:1])
+        return with_buffers(b, new), "adaptive"
 
     builds["oidn-aux"] = lambda: oidn_aux(clamped=False)
     builds["oidn-aux-clamp"] = lambda: oidn_aux(clamped=True)
@@ -212,6 +214,30 @@ def measure_item(
         row.s_per_mp = res.seconds / mp
         rows.append(row)
     return rows, extra
+
+
+def speed(item: bench_ood.Item, repeat: int, reps: int) -> dict[str, float]:
+    """Seconds per megapixel (best of ``reps``, 1 thread) of OIDN (colour, as bench_ood runs
+    it), OIDN's albedo and normal filters, and ``kpcn`` as shipped and with ``prefilter=off``
+    on ``item`` tiled ``repeat`` × ``repeat`` times (4: 1024² from the 256² set)."""
+    b = load_buffers(item.path, part=item.part)
+    b = with_buffers(b, {k: v.repeat(1, repeat, repeat) for k, v in b.buffers.items()})
+    mp = b.height * b.width / 1e6
+    aux = OidnAux()
+    runs: dict[str, Callable[[], float]] = {
+        "oidn (colour)": lambda: denoise(b, "oidn", device="cpu").seconds,
+        "OIDN albedo filter": lambda: aux("albedo", b["albedo"])[2],
+        "OIDN normal filter": lambda: aux("normal", b["normal"])[2],
+        "kpcn shipped (adaptive)": lambda: denoise(b, "kpcn", device="cpu").seconds,
+        "kpcn prefilter=off": lambda: (
+            denoise(b, "kpcn", params={"prefilter": "off"}, device="cpu").seconds
+        ),
+    }
+    out = {}
+    for name, run in runs.items():
+        run()  # warm-up (weights, OIDN filter set-up)
+        out[name] = min(run() for _ in range(reps)) / mp
+    return out
 
 
 # --- summaries -----------------------------------------------------------------------------------
@@ -331,6 +357,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--markdown", type=Path, default=None)
     ap.add_argument("--from-json", type=Path, action="append", default=[], metavar="RUN.json",
                     help="tables of earlier --json runs instead of measuring")  # fmt: skip
+    ap.add_argument("--speed", type=int, default=0, metavar="REPS",
+                    help="instead of measuring: time OIDN's colour and aux filters and kpcn "
+                    "(best of REPS, 1 thread) on the first image, tiled to --speed-tile²×")  # fmt: skip
+    ap.add_argument("--speed-tile", type=int, default=4, help="tiling of the --speed image")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     levels = [int(x) for x in args.levels.split(",")]
@@ -350,6 +380,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         commit = old.get("commit")
     todo = [] if args.from_json else [
         it for s in sets for it in bench_ood.items_of(args.data, s, levels, scenes)]  # fmt: skip
+    if args.speed:
+        it = todo[0]
+        res = speed(it, args.speed_tile, args.speed)
+        side = f"{256 * args.speed_tile}" if it.set.endswith("256") else "?"
+        print(f"{it.set} {it.image} {it.spp} spp tiled {args.speed_tile}x{args.speed_tile} "
+              f"({side}²), best of {args.speed}, 1 thread: s/MP")  # fmt: skip
+        for name, v in res.items():
+            print(f"  {name:26s} {v:6.2f}")
+        return 0
     aux = OidnAux() if any(v.startswith("oidn-aux") for v in variants) and todo else None
     print(f"{len(todo)} items in {', '.join(sets)}; variants {', '.join(variants)}", flush=True)
     t0 = time.perf_counter()
