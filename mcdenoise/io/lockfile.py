@@ -57,8 +57,18 @@ class Holder:
     token: str
 
     def describe(self) -> str:
-        """``"an experiment run (process 123 on host1, since 2026-01-01T10:00:00+00:00)"``."""
-        return f"{self.what} (process {self.pid} on {self.host}, since {self.started})"
+        """``"an experiment run (process 123 on host1, since 2026-01-01T10:00:00+00:00)"``.
+
+        The fields come from a file another process (or a person) wrote: each is shown on one
+        line, control characters escaped, at most 80 characters."""
+        what, host, started = (_printable(x) for x in (self.what, self.host, self.started))
+        return f"{what} (process {self.pid} on {host}, since {started})"
+
+
+def _printable(text: str, limit: int = 80) -> str:
+    """``text`` with control characters (newlines, terminal escapes) escaped, cut at ``limit``."""
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return out if len(out) <= limit else out[: limit - 3] + "..."
 
 
 def read_holder(path: str | os.PathLike[str]) -> Holder | None:

@@ -55,3 +55,14 @@ def test_a_half_written_lock_is_live_for_a_moment_then_stale(tmp_path):
     assert live_holder(path) is None
     with LockFile(path, "a test", heartbeat=None):
         assert read_holder(path) is not None
+
+
+def test_a_holder_written_by_someone_else_is_shown_on_one_line() -> None:
+    """A lock file's fields are shown escaped and cut: a newline or a terminal escape in a
+    hand-written (or hostile) lock file cannot break or rewrite the refusal's line."""
+    from mcdenoise.io.lockfile import Holder
+
+    h = Holder("host\n2", 7, "now\x1b[2J", "a run\r\nrm -rf " + "x" * 200, "t")
+    text = h.describe()
+    assert text.isprintable() and "\\n" in text and "\\x1b" in text
+    assert len(text) < 80 * 3 + 60
