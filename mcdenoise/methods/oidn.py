@@ -3,8 +3,10 @@
 OIDN is the industry's reference denoiser, so every experiment can be compared with it; it is
 a peer, never the default (priority 0). We call
 its ``RT`` filter in HDR mode with the auxiliary buffers OIDN documents: albedo in [0, 1] and
-world- or view-space normals in [-1, 1] (both optional; OIDN prefilters them unless
-``clean_aux`` is set). OIDN needs the colour to be non-negative and finite, so the caller passes
+world- or view-space normals in [-1, 1] (both optional; ``clean_aux`` says they are noise-free,
+so OIDN runs its filter trained on clean guides; without it, the one trained on noisy guides:
+OIDN runs no separate prefilter pass, measured at the same time as colour alone,
+``docs/results/aux-prefilter.md``). OIDN needs the colour to be non-negative and finite, so the caller passes
 sanitised buffers.
 """
 
@@ -50,7 +52,7 @@ def oidn_denoise(
         normal: optional ``(3, H, W)`` shading normal in [-1, 1]; only used together with
             albedo (OIDN's rule: normal requires albedo).
         quality: ``"high"``, ``"balanced"`` or ``"fast"``.
-        clean_aux: the auxiliary buffers are noise-free (skip OIDN's prefiltering).
+        clean_aux: the auxiliary buffers are noise-free (OIDN's filter for clean guides).
 
     Returns:
         ``(3, H, W)`` float32 tensor on ``color``'s device.
