@@ -19,15 +19,18 @@ from mcdenoise_cli.options import threads_option
 )
 @click.option(
     "--data",
-    type=click.Path(file_okay=False),
+    type=click.Path(),
+    callback=lambda ctx, param, value: _check_data(value),
     default=None,
-    help="Data set made by `mcdenoise render` (DIR/<id>.exr + DIR/ref/<id>.exr).",
+    help="Data set made by `mcdenoise render` (DIR/<id>.exr + DIR/ref/<id>.exr), or kpcn: a "
+    "pack made by --pack (FILE.npz; read with numpy and torch only).",
 )
 @click.option(
     "--out",
     type=click.Path(file_okay=False),
-    required=True,
-    help="Run folder (config.json, checkpoints/, latest, metrics.jsonl, model.pt).",
+    default=None,
+    help="Run folder (config.json, checkpoints/, latest, metrics.jsonl, model.pt). Required "
+    "unless --pack.",
 )
 @click.option(
     "--config",
@@ -66,18 +69,67 @@ from mcdenoise_cli.options import threads_option
     "frozen; alone, the whole model trains further with this run's schedule.",
 )
 @click.option(
+    "--pack",
+    "pack",
+    type=click.Path(dir_okay=False),
+    default=None,
+    metavar="FILE.npz",
+    help="kpcn: prepare --data DIR as training would (same split, channels, config) and write "
+    "it to FILE.npz instead of training; train from it with --data FILE.npz.",
+)
+@click.option(
+    "--pack-dtype",
+    "pack_dtype",
+    type=click.Choice(["float16", "float32"]),
+    default="float16",
+    show_default=True,
+    help="Storage of --pack: float16 (an array beyond its range stays float32) or float32 "
+    "(the folder's values bit for bit).",
+)
+@click.option(
     "--quiet",
     is_flag=True,
     help="No progress (default: a bar on a terminal, a few plain lines in a log).",
 )
 def train(
-    threads, model, data, out, config_file, overrides, steps, resume, finetune_encoder, base, quiet
+    threads,
+    model,
+    data,
+    out,
+    config_file,
+    overrides,
+    steps,
+    resume,
+    finetune_encoder,
+    base,
+    pack,
+    pack_dtype,
+    quiet,
 ):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
     from mcdenoise.denoise import check_output_folder
     from mcdenoise.method import params_from_strings
     from mcdenoise.train.trainers import train_model
 
+    if pack is not None:
+        from mcdenoise.train.trainers import pack_data
+
+        summary = pack_data(
+            pack,
+            model=model,
+            data=data,
+            config_file=config_file,
+            overrides=_with_threads(params_from_strings(overrides, option="--set"), threads),
+            dtype=pack_dtype,
+            progress=not quiet,
+        )
+        click.echo(summary.line())
+        return
+    if out is None:
+        ctx = click.get_current_context()
+        raise click.MissingParameter(
+            ctx=ctx, param=next(p for p in ctx.command.params if p.name == "out")
+        )
     check_output_folder(out, "--out")
 
     outcome = train_model(
@@ -96,6 +148,16 @@ def train(
         return
     for line, to_stderr in outcome.messages():
         click.echo(line, err=to_stderr)
+
+
+def _check_data(value):
+    """``--data``: a folder, or a pack (``*.npz``); another existing file is refused, as a
+    folder-only option refuses it."""
+    from pathlib import Path
+
+    if value is not None and Path(value).is_file() and not value.lower().endswith(".npz"):
+        raise click.BadParameter(f"Directory {value!r} is a file.", param_hint="'--data'")
+    return value
 
 
 def _with_threads(values, threads):

@@ -47,12 +47,19 @@ from mcdenoise.train.dataset import (
     Item,
     LoadReport,
     PatchSampler,
+    Prepare,
     augment,
     describe_training,
     image_relmse,
-    load_split,
 )
 from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.pack import (
+    PackSummary,
+    is_pack,
+    load_training_data,
+    pack_items,
+    pack_meta,
+)
 
 #: Pixel stride of the samples the normalisation statistics are computed from.
 STATS_STRIDE = 4
@@ -265,18 +272,24 @@ def _continued_model(cfg: TrainConfig, sources: Sequence[str]) -> KpcnModel:
     return base  # loaded with every parameter trainable
 
 
-def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchSampler, LoadReport]:
-    """Scan, split, load and prepare the data, compute statistics, make (or load) the model.
+#: Config keys the prepared training data depends on: a pack (:mod:`mcdenoise.train.pack`)
+#: records them, and training from it needs the same values.
+PACK_KEYS = (
+    "model",
+    "levels",
+    "val_fraction",
+    "seed",
+    "max_images",
+    "sources",
+    "prefilter",
+    "normalize_exposure",
+)
 
-    Raises:
-        InputError: bad sources, crop size, no usable training image, bad base model.
-    """
-    if not cfg.data:
-        raise InputError("no training data: pass --data DIR (a folder made by mcdenoise render)")
-    unknown = [s for s in cfg.sources if s not in SOURCES]
-    if unknown or not cfg.sources:
-        raise InputError(f"unknown or no sources {cfg.sources}; known: {', '.join(SOURCES)}")
-    sources = [s for s in SOURCES if s in cfg.sources]
+
+def make_prepare(cfg: TrainConfig, sources: Sequence[str]) -> Prepare:
+    """The ``prepare`` hook of :func:`~mcdenoise.train.dataset.load_items` for ``cfg``: the
+    ``full`` source's tensors, the ``basic`` crops' prefiltered albedo and normal, the
+    reference, and the exposure normalisation."""
 
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
         t = prepare_tensors(buffers, "full", "all" if cfg.prefilter == "all" else "off")
@@ -290,8 +303,50 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
             t = scale_exposure(t, exposure_scale(t["color"]))
         return t
 
+    return prepare
+
+
+def pack_kpcn(
+    cfg: TrainConfig,
+    path: str | Path,
+    *,
+    dtype: str = "float16",
+    compress: bool = True,
+    progress: bool = False,
+) -> PackSummary:
+    """Prepare ``cfg.data`` as :func:`build` does and write it to the pack ``path``
+    (:mod:`mcdenoise.train.pack`); ``mcdenoise train --data PATH`` then trains from it."""
+    if not cfg.data or is_pack(cfg.data):
+        raise InputError("packing needs --data DIR (a folder made by mcdenoise render)")
+    sources = [s for s in SOURCES if s in cfg.sources]
+    return pack_items(
+        cfg,
+        make_prepare(cfg, sources),
+        path,
+        keys=PACK_KEYS,
+        dtype=dtype,
+        compress=compress,
+        progress=progress,
+    )
+
+
+def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchSampler, LoadReport]:
+    """Scan, split, load and prepare the data, compute statistics, make (or load) the model.
+
+    Raises:
+        InputError: bad sources, crop size, no usable training image, bad base model.
+    """
+    if not cfg.data:
+        raise InputError("no training data: pass --data DIR (a folder made by mcdenoise render)")
+    unknown = [s for s in cfg.sources if s not in SOURCES]
+    if unknown or not cfg.sources:
+        raise InputError(f"unknown or no sources {cfg.sources}; known: {', '.join(SOURCES)}")
+    sources = [s for s in SOURCES if s in cfg.sources]
+    prepare = make_prepare(cfg, sources)
     crop = cfg.patch + 2 * cfg.margin
-    train_items, val_items, report = load_split(cfg, prepare, crop=crop, progress=progress)
+    train_items, val_items, report = load_training_data(
+        cfg, prepare, crop=crop, keys=PACK_KEYS, progress=progress
+    )
     torch.manual_seed(cfg.seed)
     if cfg.finetune_encoder:
         model = _finetune_model(cfg, train_items)
@@ -342,6 +397,9 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[KpcnTask, PatchS
         transform=transform,
     )
     description = describe_training(cfg, train_items, val_items)
+    if is_pack(cfg.data):
+        meta = pack_meta(cfg.data)
+        description["pack"] = {"source": meta["source"], "dtype": meta["dtype"]}
     task = KpcnTask(model, val_items, description, cfg, trained)
     return task, sampler, report
 
@@ -357,9 +415,12 @@ __all__ = [
     "BASIC_PREFILTERED",
     "BASIC_SUFFIX",
     "DEFAULT_KERNEL",
+    "PACK_KEYS",
     "KpcnTask",
     "augment_exposure",
     "build",
+    "make_prepare",
+    "pack_kpcn",
     "source_stats",
     "train_kpcn",
     "use_basic_features",

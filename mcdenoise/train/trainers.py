@@ -23,6 +23,7 @@ from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig, load_config
 from mcdenoise.train.dataset import LoadReport
 from mcdenoise.train.loop import TrainResult
+from mcdenoise.train.pack import PackSummary
 
 #: ``train(cfg, out, *, resume, progress) -> (TrainResult, LoadReport)``.
 TrainFn = Callable[..., tuple[TrainResult, LoadReport]]
@@ -241,11 +242,40 @@ def train_model(
     return TrainOutcome(cfg, Path(out), result, report)
 
 
+def pack_data(
+    path: str | os.PathLike[str],
+    *,
+    model: str | None = None,
+    data: str | None = None,
+    config_file: str | os.PathLike[str] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    dtype: str = "float16",
+    progress: bool = True,
+) -> PackSummary:
+    """``mcdenoise train --pack PATH``: resolve the config as :func:`train_model` does and
+    write its data, prepared for the model, to the pack ``PATH`` (kpcn only;
+    :mod:`mcdenoise.train.pack`).
+
+    Raises:
+        InputError: another model, no data folder, bad config, no usable training image.
+    """
+    values: dict[str, Any] = dict(overrides or {})
+    if model is not None:
+        values["model"] = model
+    if data is not None:
+        values["data"] = data
+    cfg = load_config(config_file, values)
+    if cfg.model != "kpcn":
+        raise InputError(f"--pack prepares kpcn training data only, not {cfg.model}")
+    return kpcn.pack_kpcn(cfg, path, dtype=dtype, progress=progress)
+
+
 __all__ = [
     "TRAINERS",
     "TrainOutcome",
     "Trainer",
     "get_trainer",
     "implied_model",
+    "pack_data",
     "train_model",
 ]

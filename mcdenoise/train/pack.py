@@ -1,0 +1,320 @@
+"""A packed training set: the prepared training and validation items of a data set in one
+``.npz`` file, read with numpy and torch alone.
+
+``mcdenoise train --model kpcn --data DIR --pack SET.npz`` scans, splits and prepares ``DIR``
+exactly as training does (:func:`~mcdenoise.train.dataset.scan_dataset`,
+:func:`~mcdenoise.train.dataset.split_images`, :func:`~mcdenoise.train.dataset.load_items` with
+the model's ``prepare`` hook) and writes the tensors; ``mcdenoise train --data SET.npz`` then
+trains from the file (a ``.npz`` ``data`` is a pack) without reading an EXR, so without
+OpenImageIO, OpenEXR or Mitsuba: a machine with only torch and numpy can train.
+
+Exactness: with ``dtype="float32"`` the items are the folder's bit for bit, and training gives
+the same weights for the same config. ``float16`` (the default: half the size) rounds every
+value to 11 significant bits (relative error <= 2^-11); an array with a finite value beyond
+float16's range (65504, e.g. a firefly's colour variance) is kept in float32. Tiny values
+(feature variances below ~6e-8) become 0 or subnormal; the model sees variances through
+``log1p(sqrt(var))``, where that changes nothing measurable.
+
+The pack records the config keys its preparation depends on (the model's ``keys``, e.g. the
+split's ``seed``, ``val_fraction``, ``levels``, ``max_images`` and kpcn's ``prefilter``); a
+training config that differs in one of them is refused, naming the difference. The crop size
+is not one of them: training images are packed whatever their size, and those smaller than
+the run's crop are skipped when the pack is read, with the reason the folder would give.
+Each level's reference is stored once per image when the levels share it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mcdenoise.errors import InputError
+from mcdenoise.progress import Mode
+from mcdenoise.train.dataset import (
+    REFERENCE,
+    Entry,
+    Item,
+    LoadReport,
+    load_items,
+    load_split,
+    scan_dataset,
+    split_images,
+)
+
+#: File name suffix that makes a ``data`` path a pack.
+PACK_SUFFIX = ".npz"
+#: Format version written into (and required of) a pack.
+PACK_VERSION = 1
+#: Storage dtypes of :func:`write_pack`.
+PACK_DTYPES = ("float16", "float32")
+#: Largest finite float16 value: an array beyond it is stored in float32.
+FLOAT16_MAX = float(np.finfo(np.float16).max)
+_META = "meta"
+
+
+def is_pack(data: str | os.PathLike[str] | None) -> bool:
+    """Whether a ``data`` path names a pack (its name ends in :data:`PACK_SUFFIX`)."""
+    return bool(data) and str(data).lower().endswith(PACK_SUFFIX)
+
+
+@dataclass
+class PackSummary:
+    """What :func:`write_pack` wrote."""
+
+    path: Path
+    train_levels: int
+    val_levels: int
+    arrays: int
+    float32_arrays: int
+    bytes: int
+
+    def line(self) -> str:
+        return (
+            f"packed {self.train_levels} training and {self.val_levels} validation level(s) "
+            f"into {self.path} ({self.bytes / 2**20:.1f} MiB, {self.arrays} arrays, "
+            f"{self.float32_arrays} kept in float32)"
+        )
+
+
+def _stored(v: torch.Tensor, dtype: str) -> np.ndarray:
+    a = v.detach().cpu().float().contiguous().numpy()
+    if dtype == "float16" and float(np.abs(a).max(initial=0.0)) <= FLOAT16_MAX:
+        return a.astype(np.float16)
+    return a
+
+
+def write_pack(
+    path: str | os.PathLike[str],
+    train: Sequence[Item],
+    val: Sequence[Item],
+    report: LoadReport,
+    *,
+    config: Mapping[str, Any],
+    source: str,
+    dtype: str = "float16",
+    compress: bool = True,
+) -> PackSummary:
+    """Write prepared items to the pack ``path`` (atomically: a temporary file, renamed).
+
+    Args:
+        config: the config values the preparation depended on (checked when read).
+        source: the data folder the items came from (recorded).
+        dtype: ``float16`` (values beyond float16's range keep float32) or ``float32``.
+        compress: ``np.savez_compressed`` (zip deflate) rather than ``np.savez``.
+    """
+    if dtype not in PACK_DTYPES:
+        raise InputError(f"pack dtype must be one of {', '.join(PACK_DTYPES)}, got {dtype!r}")
+    out = Path(path)
+    if not is_pack(out):
+        raise InputError(f"{out}: a pack's name must end in {PACK_SUFFIX}")
+    arrays: dict[str, np.ndarray] = {}
+    records: list[dict[str, Any]] = []
+    shared: list[tuple[str, torch.Tensor]] = []  # (array name, reference) of earlier levels
+
+    def add(v: torch.Tensor) -> str:
+        name = f"a{len(arrays)}"
+        arrays[name] = _stored(v, dtype)
+        return name
+
+    for split, items in (("train", train), ("val", val)):
+        for it in items:
+            e = it.entry
+            names = {}
+            for key, v in it.tensors.items():
+                if key == REFERENCE:
+                    same = [n for n, r in shared if r is v or torch.equal(r, v)]
+                    if same:
+                        names[key] = same[0]
+                        continue
+                    names[key] = add(v)
+                    shared = [(names[key], v)]  # levels of one image are consecutive
+                else:
+                    names[key] = add(v)
+            records.append(
+                {
+                    "split": split,
+                    "image": e.image,
+                    "path": str(e.path),
+                    "part": e.part,
+                    "reference": str(e.reference),
+                    "spp": e.spp,
+                    "arrays": names,
+                }
+            )
+    meta = {
+        "format": "mcdenoise training pack",
+        "version": PACK_VERSION,
+        "source": source,
+        "dtype": dtype,
+        "config": dict(config),
+        "items": records,
+        "skipped": [list(s) for s in report.skipped],
+    }
+    arrays[_META] = np.array(json.dumps(meta))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp.npz")
+    try:
+        with open(tmp, "wb") as f:
+            (np.savez_compressed if compress else np.savez)(f, **arrays)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    n32 = sum(1 for k, a in arrays.items() if k != _META and a.dtype == np.float32)
+    return PackSummary(
+        out,
+        len(train),
+        len(val),
+        len(arrays) - 1,
+        n32 if dtype == "float16" else 0,
+        out.stat().st_size,
+    )
+
+
+def pack_items(
+    cfg: Any,
+    prepare: Callable[..., dict[str, torch.Tensor]],
+    path: str | os.PathLike[str],
+    *,
+    keys: Sequence[str],
+    dtype: str = "float16",
+    compress: bool = True,
+    progress: Mode = False,
+) -> PackSummary:
+    """Scan, split and prepare ``cfg.data`` as :func:`~mcdenoise.train.dataset.load_split`
+    does (every training image whatever its size) and write the pack ``path``; ``keys``: the
+    config keys the preparation depends on.
+
+    Raises:
+        InputError: no usable training image, a bad ``dtype`` or file name.
+    """
+    entries = scan_dataset(cfg.data, cfg.levels)
+    train_e, val_e = split_images(entries, cfg.val_fraction, cfg.seed, cfg.max_images)
+    train, report = load_items(train_e, prepare, min_size=1, progress=progress)
+    val, val_report = load_items(val_e, prepare, min_size=1, progress=progress)
+    report.skipped += val_report.skipped
+    if not train:
+        raise InputError(f"{cfg.data}: no usable training image\n{report.summary()}")
+    values = cfg.to_dict()
+    return write_pack(
+        path,
+        train,
+        val,
+        report,
+        config={k: values[k] for k in keys},
+        source=str(cfg.data),
+        dtype=dtype,
+        compress=compress,
+    )
+
+
+def _open(path: Path) -> Any:
+    if not path.is_file():
+        raise InputError(f"{path}: no such pack (make one with mcdenoise train --pack)")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise InputError(f"{path}: not a readable training pack ({err})") from None
+
+
+def pack_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The metadata of the pack ``path`` (source folder, dtype, config, items, skipped)."""
+    p = Path(path)
+    with _open(p) as z:
+        if _META not in z.files:
+            raise InputError(f"{p}: not a training pack (no metadata)")
+        meta = json.loads(str(z[_META]))
+    if meta.get("version") != PACK_VERSION:
+        raise InputError(f"{p}: pack version {meta.get('version')!r}, expected {PACK_VERSION}")
+    return meta
+
+
+def read_pack(
+    cfg: Any, *, crop: int, keys: Sequence[str] = ()
+) -> tuple[list[Item], list[Item], LoadReport]:
+    """The pack ``cfg.data`` as :func:`~mcdenoise.train.dataset.load_split` returns a folder:
+    ``(train items, validation items, report)``; training images smaller than ``crop`` are
+    skipped and reported.
+
+    Raises:
+        InputError: not a pack, a config that differs from the pack's in one of ``keys`` (or
+            of the keys the pack recorded), or no usable training image.
+    """
+    path = Path(cfg.data)
+    meta = pack_meta(path)
+    values = cfg.to_dict()
+    packed = meta["config"]
+    diff = [
+        f"{k}: pack {packed.get(k)!r}, config {values.get(k)!r}"
+        for k in sorted({*packed, *keys})
+        if packed.get(k) != values.get(k)
+    ]
+    if diff:
+        raise InputError(
+            f"{path}: the pack was prepared with another config ({'; '.join(diff)}); "
+            "pack the data again with these settings"
+        )
+    report = LoadReport(skipped=[(str(a), str(b)) for a, b in meta["skipped"]])
+    train: list[Item] = []
+    val: list[Item] = []
+    with _open(path) as z:
+        cache: dict[str, torch.Tensor] = {}
+
+        def tensor(name: str) -> torch.Tensor:
+            if name not in cache:
+                cache[name] = torch.from_numpy(z[name]).float().contiguous()
+            return cache[name]
+
+        for rec in meta["items"]:
+            entry = Entry(
+                rec["image"], Path(rec["path"]), rec["part"], Path(rec["reference"]), rec["spp"]
+            )
+            item = Item(entry, {k: tensor(n) for k, n in rec["arrays"].items()})
+            if rec["split"] == "train":
+                if min(item.size) < crop:
+                    report.skipped.append((entry.name, f"smaller than a training crop ({crop} px)"))
+                    continue
+                train.append(item)
+            else:
+                val.append(item)
+            # only a reference is shared (by the levels of one image, which are consecutive)
+            cache = {k: v for k, v in cache.items() if k == rec["arrays"].get(REFERENCE)}
+    report.used = len(train)  # as load_split reports it
+    if not train:
+        raise InputError(f"{path}: no usable training image\n{report.summary()}")
+    return train, val, report
+
+
+def load_training_data(
+    cfg: Any,
+    prepare: Callable[..., dict[str, torch.Tensor]],
+    *,
+    crop: int,
+    keys: Sequence[str] = (),
+    progress: Mode = False,
+) -> tuple[list[Item], list[Item], LoadReport]:
+    """:func:`read_pack` when ``cfg.data`` is a pack, else
+    :func:`~mcdenoise.train.dataset.load_split` of the folder."""
+    if is_pack(cfg.data):
+        return read_pack(cfg, crop=crop, keys=keys)
+    return load_split(cfg, prepare, crop=crop, progress=progress)
+
+
+__all__ = [
+    "FLOAT16_MAX",
+    "PACK_DTYPES",
+    "PACK_SUFFIX",
+    "PackSummary",
+    "is_pack",
+    "load_training_data",
+    "pack_items",
+    "pack_meta",
+    "read_pack",
+    "write_pack",
+]
