@@ -31,6 +31,8 @@ SHIM=$(mktemp -d)
 ln -s "$REPO/cli" "$SHIM/mcdenoise_cli"
 export PYTHONPATH="$REPO:$SHIM${PYTHONPATH:+:$PYTHONPATH}"
 export PYTHONUNBUFFERED=1
+# deterministic = true (the default) asks cuBLAS for reproducible results: it needs this
+export CUBLAS_WORKSPACE_CONFIG=${CUBLAS_WORKSPACE_CONFIG:-:4096:8}
 
 "$PYTHON" - <<'EOF' | tee "$OUT/summary.txt"
 import platform, torch

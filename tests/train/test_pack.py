@@ -225,3 +225,31 @@ def test_training_from_a_pack_imports_no_exr_library(
     assert "no EXR library imported" in r.stdout
     assert f"{REPO / 'mcdenoise'}" in r.stdout and f"{shim / 'mcdenoise_cli'}" in r.stdout
     assert (tmp_path / "run" / "model.pt").is_file()
+
+
+def test_the_gpu_recipe_script_trains_from_a_pack_on_cpu(
+    packs: dict[str, Path], tmp_path: Path
+) -> None:
+    """data/recipes/kpcn_gpu.sh end to end with DEVICE=cpu: the run folder in $OUT/run, a
+    summary with steps/s (what a GPU session runs, with DEVICE=cuda)."""
+    flags = [
+        x for k, v in {**TINY, "steps": 2, "epoch_steps": 2}.items() for x in ("-s", f"{k}={v}")
+    ]
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "DEVICE": "cpu", "PYTHON": sys.executable}
+    r = subprocess.run(
+        ["bash", str(REPO / "data" / "recipes" / "kpcn_gpu.sh"), str(packs["float16"]), *flags],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=120,
+    )
+    assert r.returncode == 0, (r.stdout + r.stderr)[-2000:]
+    out = tmp_path / "out"
+    summary = (out / "summary.txt").read_text()
+    assert "no CUDA device" in summary and "2 steps in" in summary and "steps/s" in summary
+    run = out / "run"
+    assert {p.name for p in run.iterdir()} >= {"config.json", "latest", "metrics.jsonl", "model.pt"}
+    assert json.loads((run / "config.json").read_text())["device"] == "cpu"
+    assert KpcnModel.load(run).card.training["pack"]["dtype"] == "float16"
+    assert len(list(run.rglob("*"))) + 2 <= 9  # files + checkpoints/: what $OUT brings back
