@@ -87,6 +87,14 @@ from mcdenoise_cli.options import threads_option
     "(the folder's values bit for bit).",
 )
 @click.option(
+    "--pack-shard-mib",
+    "pack_shard_mib",
+    type=click.FloatRange(min=0),
+    default=0,
+    help="Split --pack into files of about this many MiB (FILE.npz, FILE.part1.npz, ...: "
+    "parts that travel separately; the reader needs them all beside FILE.npz). 0: one file.",
+)
+@click.option(
     "--quiet",
     is_flag=True,
     help="No progress (default: a bar on a terminal, a few plain lines in a log).",
@@ -104,6 +112,7 @@ def train(
     base,
     pack,
     pack_dtype,
+    pack_shard_mib,
     quiet,
 ):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
@@ -121,6 +130,7 @@ def train(
             config_file=config_file,
             overrides=_with_threads(params_from_strings(overrides, option="--set"), threads),
             dtype=pack_dtype,
+            shard_bytes=int(pack_shard_mib * 2**20),
             progress=not quiet,
         )
         click.echo(summary.line())

@@ -312,6 +312,7 @@ def pack_kpcn(
     *,
     dtype: str = "float16",
     compress: bool = True,
+    shard_bytes: int = 0,
     progress: bool = False,
 ) -> PackSummary:
     """Prepare ``cfg.data`` as :func:`build` does and write it to the pack ``path``
@@ -326,6 +327,7 @@ def pack_kpcn(
         keys=PACK_KEYS,
         dtype=dtype,
         compress=compress,
+        shard_bytes=shard_bytes,
         progress=progress,
     )
 

@@ -25,8 +25,10 @@ Each level's reference is stored once per image when the levels share it.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,11 +76,13 @@ class PackSummary:
     arrays: int
     float32_arrays: int
     bytes: int
+    files: int = 1
 
     def line(self) -> str:
+        parts = f" in {self.files} files" if self.files > 1 else ""
         return (
             f"packed {self.train_levels} training and {self.val_levels} validation level(s) "
-            f"into {self.path} ({self.bytes / 2**20:.1f} MiB, {self.arrays} arrays, "
+            f"into {self.path} ({self.bytes / 2**20:.1f} MiB{parts}, {self.arrays} arrays, "
             f"{self.float32_arrays} kept in float32)"
         )
 
@@ -100,14 +104,19 @@ def write_pack(
     source: str,
     dtype: str = "float16",
     compress: bool = True,
+    shard_bytes: int = 0,
 ) -> PackSummary:
-    """Write prepared items to the pack ``path`` (atomically: a temporary file, renamed).
+    """Write prepared items to the pack ``path`` (atomically: temporary files, renamed).
 
     Args:
         config: the config values the preparation depended on (checked when read).
         source: the data folder the items came from (recorded).
         dtype: ``float16`` (values beyond float16's range keep float32) or ``float32``.
-        compress: ``np.savez_compressed`` (zip deflate) rather than ``np.savez``.
+        compress: zip deflate (as ``np.savez_compressed``) rather than stored (``np.savez``).
+        shard_bytes: > 0: once a file holds this many bytes, the next arrays go to a new
+            file beside it, ``SET.part1.npz``, ``SET.part2.npz``, ... (each about
+            ``shard_bytes``, the main file also the metadata): parts that travel separately.
+            The reader needs every part beside the main file.
     """
     if dtype not in PACK_DTYPES:
         raise InputError(f"pack dtype must be one of {', '.join(PACK_DTYPES)}, got {dtype!r}")
@@ -157,24 +166,78 @@ def write_pack(
         "items": records,
         "skipped": [list(s) for s in report.skipped],
     }
-    arrays[_META] = np.array(json.dumps(meta))
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp.npz")
-    try:
-        with open(tmp, "wb") as f:
-            (np.savez_compressed if compress else np.savez)(f, **arrays)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
-    n32 = sum(1 for k, a in arrays.items() if k != _META and a.dtype == np.float32)
+    files = _write_shards(out, arrays, meta, compress=compress, shard_bytes=shard_bytes)
+    n32 = sum(1 for a in arrays.values() if a.dtype == np.float32)
     return PackSummary(
         out,
         len(train),
         len(val),
-        len(arrays) - 1,
+        len(arrays),
         n32 if dtype == "float16" else 0,
-        out.stat().st_size,
+        sum(f.stat().st_size for f in files),
+        len(files),
     )
+
+
+def shard_path(path: Path, index: int) -> Path:
+    """File ``index`` (>= 1) of a pack split into shards: ``SET.part<index>.npz``."""
+    return path.with_name(f"{path.name[: -len(PACK_SUFFIX)]}.part{index}{PACK_SUFFIX}")
+
+
+def _write_shards(
+    out: Path,
+    arrays: Mapping[str, np.ndarray],
+    meta: dict[str, Any],
+    *,
+    compress: bool,
+    shard_bytes: int,
+) -> list[Path]:
+    """The arrays into ``out`` (with the metadata) and, past ``shard_bytes`` of written file
+    (0: no limit), into ``out``'s shards; each a ``.npz`` as ``np.savez`` writes it. Written
+    to temporary files, renamed at the end (the main file last). Returns the files."""
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    temps: list[Path] = []
+    zips: list[zipfile.ZipFile] = []
+
+    def open_zip(index: int) -> zipfile.ZipFile:
+        final = out if index == 0 else shard_path(out, index)
+        temps.append(final.with_name(f".{final.name}.tmp"))
+        zips.append(zipfile.ZipFile(temps[-1], "w", compression=method, allowZip64=True))
+        return zips[-1]
+
+    def put(zf: zipfile.ZipFile, name: str, a: np.ndarray) -> None:
+        with zf.open(f"{name}.npy", "w", force_zip64=True) as fid:
+            np.lib.format.write_array(fid, a, allow_pickle=False)
+
+    shard_of: dict[str, int] = {}
+    try:
+        current = open_zip(0)
+        for name, a in arrays.items():
+            if shard_bytes > 0 and current.fp is not None and current.fp.tell() >= shard_bytes:
+                if len(zips) > 1:
+                    current.close()
+                current = open_zip(len(zips))
+            put(current, name, a)
+            if len(zips) > 1:
+                shard_of[name] = len(zips) - 1
+        meta = {
+            **meta,
+            "shards": [shard_path(out, i).name for i in range(1, len(zips))],
+            "shard_of": shard_of,
+        }
+        put(zips[0], _META, np.array(json.dumps(meta)))
+        for zf in zips:
+            zf.close()
+        finals = [out] + [shard_path(out, i) for i in range(1, len(zips))]
+        for tmp, final in list(zip(temps, finals, strict=True))[::-1]:  # the main file last
+            os.replace(tmp, final)
+        return finals
+    finally:
+        for zf in zips:
+            zf.close()
+        for tmp in temps:
+            tmp.unlink(missing_ok=True)
 
 
 def pack_items(
@@ -185,6 +248,7 @@ def pack_items(
     keys: Sequence[str],
     dtype: str = "float16",
     compress: bool = True,
+    shard_bytes: int = 0,
     progress: Mode = False,
 ) -> PackSummary:
     """Scan, split and prepare ``cfg.data`` as :func:`~mcdenoise.train.dataset.load_split`
@@ -211,6 +275,7 @@ def pack_items(
         source=str(cfg.data),
         dtype=dtype,
         compress=compress,
+        shard_bytes=shard_bytes,
     )
 
 
@@ -263,12 +328,17 @@ def read_pack(
     report = LoadReport(skipped=[(str(a), str(b)) for a, b in meta["skipped"]])
     train: list[Item] = []
     val: list[Item] = []
-    with _open(path) as z:
+    shard_of: dict[str, int] = meta.get("shard_of", {})
+    with contextlib.ExitStack() as stack:
+        files = [stack.enter_context(_open(path))]
+        for name in meta.get("shards", []):
+            files.append(stack.enter_context(_open(path.parent / name)))
         cache: dict[str, torch.Tensor] = {}
 
         def tensor(name: str) -> torch.Tensor:
             if name not in cache:
-                cache[name] = torch.from_numpy(z[name]).float().contiguous()
+                a = files[shard_of.get(name, 0)][name]
+                cache[name] = torch.from_numpy(a).float().contiguous()
             return cache[name]
 
         for rec in meta["items"]:
@@ -316,5 +386,6 @@ __all__ = [
     "pack_items",
     "pack_meta",
     "read_pack",
+    "shard_path",
     "write_pack",
 ]

@@ -250,6 +250,7 @@ def pack_data(
     config_file: str | os.PathLike[str] | None = None,
     overrides: Mapping[str, Any] | None = None,
     dtype: str = "float16",
+    shard_bytes: int = 0,
     progress: bool = True,
 ) -> PackSummary:
     """``mcdenoise train --pack PATH``: resolve the config as :func:`train_model` does and
@@ -267,7 +268,7 @@ def pack_data(
     cfg = load_config(config_file, values)
     if cfg.model != "kpcn":
         raise InputError(f"--pack prepares kpcn training data only, not {cfg.model}")
-    return kpcn.pack_kpcn(cfg, path, dtype=dtype, progress=progress)
+    return kpcn.pack_kpcn(cfg, path, dtype=dtype, shard_bytes=shard_bytes, progress=progress)
 
 
 __all__ = [

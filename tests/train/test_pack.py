@@ -253,3 +253,29 @@ def test_the_gpu_recipe_script_trains_from_a_pack_on_cpu(
     assert json.loads((run / "config.json").read_text())["device"] == "cpu"
     assert KpcnModel.load(run).card.training["pack"]["dtype"] == "float16"
     assert len(list(run.rglob("*"))) + 2 <= 9  # files + checkpoints/: what $OUT brings back
+
+
+def test_a_pack_split_into_parts_reads_as_one(
+    tiny_dataset: Path, packs: dict[str, Path], tmp_path: Path
+) -> None:
+    r = CliRunner().invoke(
+        main,
+        ["train", "--model", "kpcn", "--data", str(tiny_dataset), "--quiet"]
+        + ["--pack", str(tmp_path / "set.npz"), "--pack-shard-mib", "0.02"]
+        + [x for k, v in TINY.items() if k != "model" for x in ("-s", f"{k}={v}")],
+    )
+    assert r.exit_code == 0, r.output
+    parts = sorted(p.name for p in tmp_path.iterdir())
+    assert "set.npz" in parts and "set.part1.npz" in parts and "in 1 files" not in r.output
+    assert all(p.stat().st_size < 0.02 * 2**20 + 40_000 for p in tmp_path.iterdir())
+    shards = pack_meta(tmp_path / "set.npz")["shards"]
+    assert sorted(shards) == [p for p in parts if p != "set.npz"]
+    c = cfg(tmp_path / "set.npz")
+    whole, whole_val, _ = read_pack(cfg(packs["float16"]), crop=32)
+    split, split_val, _ = read_pack(c, crop=32)
+    for a, b in zip([*split, *split_val], [*whole, *whole_val], strict=True):
+        assert a.entry == b.entry
+        assert all(torch.equal(a.tensors[k], b.tensors[k]) for k in b.tensors)
+    (tmp_path / "set.part1.npz").unlink()
+    with pytest.raises(InputError, match=r"set\.part1\.npz: no such pack"):
+        read_pack(c, crop=32)
