@@ -23,7 +23,7 @@ from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig, load_config
 from mcdenoise.train.dataset import LoadReport
 from mcdenoise.train.loop import TrainResult
-from mcdenoise.train.pack import PackSummary
+from mcdenoise.train.pack import PackSummary, is_pack
 
 #: ``train(cfg, out, *, resume, progress) -> (TrainResult, LoadReport)``.
 TrainFn = Callable[..., tuple[TrainResult, LoadReport]]
@@ -238,6 +238,8 @@ def train_model(
         config_file = run.config_path
     cfg = load_config(config_file, values)
     trainer = get_trainer(cfg.model)
+    if is_pack(cfg.data) and cfg.model != "kpcn":
+        raise InputError(f"{cfg.data}: a pack (.npz) is kpcn training data: pass --model kpcn")
     result, report = trainer.train(cfg, out, resume=resume, progress=progress)
     return TrainOutcome(cfg, Path(out), result, report)
 

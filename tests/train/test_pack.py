@@ -178,6 +178,8 @@ def test_the_cli_packs_and_trains_from_the_pack(tiny_dataset: Path, tmp_path: Pa
     )
     assert r.exit_code == 0, r.output
     assert json.loads((run / "config.json").read_text())["data"] == str(pack)
+    r = CliRunner().invoke(main, ["train", "--data", str(pack), "--out", str(tmp_path / "x")])
+    assert r.exit_code == 1 and "pass --model kpcn" in r.output  # the default model is not kpcn
     # without --pack, --out is still required; a file that is not a pack is still refused
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 2 and "Missing option '--out'" in r.output
