@@ -10,7 +10,9 @@
 # and win (e.g. -s steps=4000 -s batch=32, or --from RUN for the fine-tuning).
 #
 # Environment: DEVICE (cuda), AMP (bf16; ignored on cpu), PYTHON (python3), OUT (default
-# runs/kpcn-gpu; the device tool sets it). Written: $OUT/summary.txt (torch, GPU, steps/s),
+# runs/kpcn-gpu; the device tool sets it), TIME_LIMIT (seconds: then training is interrupted
+# like Ctrl-C, exit status 124, and the summary still written; the run folder keeps its last
+# checkpoint, at a multiple of epoch_steps, for --resume). Written: $OUT/summary.txt (torch, GPU, steps/s),
 # $OUT/train.log and the run folder $OUT/run (config.json, latest, metrics.jsonl, model.pt =
 # weights + card, checkpoints/ with the last checkpoint: 7 files in all, within what the
 # device tool brings back; `mcdenoise train --out $OUT/run --resume` continues it).
@@ -43,7 +45,9 @@ EOF
 
 # The shipped recipe's first command (data/recipes/kpcn.md); -s threads: the sampler's CPU work.
 set +e
-"$PYTHON" -m mcdenoise_cli.main train --model kpcn --data "$PACK" --out "$RUN" \
+limit=()
+[ -n "${TIME_LIMIT:-}" ] && limit=(timeout --signal=INT --kill-after=30 "$TIME_LIMIT")
+"${limit[@]}" "$PYTHON" -m mcdenoise_cli.main train --model kpcn --data "$PACK" --out "$RUN" \
     -s kernel=5 -s patch=48 -s margin=8 -s batch=8 -s steps=16000 -s epoch_steps=1000 \
     -s lr=1e-3 -s warmup=200 -s threads=4 -s checkpoints_kept=1 \
     -s device="$DEVICE" -s amp="$AMP" "$@" 2>&1 | tee "$OUT/train.log"
