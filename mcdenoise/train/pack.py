@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from mcdenoise.errors import InputError
+from mcdenoise.io.atomic import atomic_path
 from mcdenoise.progress import Mode
 from mcdenoise.train.dataset import (
     REFERENCE,
@@ -194,50 +195,54 @@ def _write_shards(
     shard_bytes: int,
 ) -> list[Path]:
     """The arrays into ``out`` (with the metadata) and, past ``shard_bytes`` of written file
-    (0: no limit), into ``out``'s shards; each a ``.npz`` as ``np.savez`` writes it. Written
-    to temporary files, renamed at the end (the main file last). Returns the files."""
+    (0: no limit), into ``out``'s shards; each a ``.npz`` as ``np.savez`` writes it. Each
+    file is written as every file of the tool is (:func:`~mcdenoise.io.atomic.atomic_path`:
+    a temporary, flushed to the disk, checked to be a complete zip archive, renamed), the
+    main file last, so a reader never finds a main file whose shards are missing. Returns
+    the files."""
     method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
-    temps: list[Path] = []
     zips: list[zipfile.ZipFile] = []
+    finals: list[Path] = []
 
-    def open_zip(index: int) -> zipfile.ZipFile:
-        final = out if index == 0 else shard_path(out, index)
-        temps.append(final.with_name(f".{final.name}.tmp"))
-        zips.append(zipfile.ZipFile(temps[-1], "w", compression=method, allowZip64=True))
-        return zips[-1]
+    def complete(tmp: Path) -> None:
+        if not zipfile.is_zipfile(tmp):
+            raise OSError(0, f"the pack written is incomplete ({tmp.stat().st_size} bytes)")
 
     def put(zf: zipfile.ZipFile, name: str, a: np.ndarray) -> None:
         with zf.open(f"{name}.npy", "w", force_zip64=True) as fid:
             np.lib.format.write_array(fid, a, allow_pickle=False)
 
-    shard_of: dict[str, int] = {}
-    try:
-        current = open_zip(0)
-        for name, a in arrays.items():
-            if shard_bytes > 0 and current.fp is not None and current.fp.tell() >= shard_bytes:
+    # contexts leave in reverse order: the main file (entered first) is renamed last
+    with contextlib.ExitStack() as stack:
+
+        def open_zip(index: int) -> zipfile.ZipFile:
+            final = out if index == 0 else shard_path(out, index)
+            tmp = stack.enter_context(atomic_path(final, verify=complete))
+            finals.append(final)
+            zips.append(zipfile.ZipFile(tmp, "w", compression=method, allowZip64=True))
+            return zips[-1]
+
+        shard_of: dict[str, int] = {}
+        try:
+            current = open_zip(0)
+            for name, a in arrays.items():
+                if shard_bytes > 0 and current.fp is not None and current.fp.tell() >= shard_bytes:
+                    if len(zips) > 1:
+                        current.close()
+                    current = open_zip(len(zips))
+                put(current, name, a)
                 if len(zips) > 1:
-                    current.close()
-                current = open_zip(len(zips))
-            put(current, name, a)
-            if len(zips) > 1:
-                shard_of[name] = len(zips) - 1
-        meta = {
-            **meta,
-            "shards": [shard_path(out, i).name for i in range(1, len(zips))],
-            "shard_of": shard_of,
-        }
-        put(zips[0], _META, np.array(json.dumps(meta)))
-        for zf in zips:
-            zf.close()
-        finals = [out] + [shard_path(out, i) for i in range(1, len(zips))]
-        for tmp, final in list(zip(temps, finals, strict=True))[::-1]:  # the main file last
-            os.replace(tmp, final)
-        return finals
-    finally:
-        for zf in zips:
-            zf.close()
-        for tmp in temps:
-            tmp.unlink(missing_ok=True)
+                    shard_of[name] = len(zips) - 1
+            meta = {
+                **meta,
+                "shards": [shard_path(out, i).name for i in range(1, len(zips))],
+                "shard_of": shard_of,
+            }
+            put(zips[0], _META, np.array(json.dumps(meta)))
+        finally:
+            for zf in zips:
+                zf.close()
+    return finals
 
 
 def pack_items(

@@ -281,3 +281,33 @@ def test_a_pack_split_into_parts_reads_as_one(
     (tmp_path / "set.part1.npz").unlink()
     with pytest.raises(InputError, match=r"set\.part1\.npz: no such pack"):
         read_pack(c, crop=32)
+
+
+def test_a_pack_write_that_fails_leaves_no_file_and_no_temporary(tmp_path, monkeypatch) -> None:
+    """A full disk while packing (the second array's write fails): no pack, no shard and no
+    temporary file is left, and the error names the pack (written as every file is)."""
+    import errno
+
+    import numpy as np
+
+    from mcdenoise.errors import WriteError
+    from mcdenoise.train import pack
+
+    real, calls = np.lib.format.write_array, []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(np.lib.format, "write_array", failing)
+    arrays = {f"a{i}": np.full((64, 64), i, np.float32) for i in range(4)}
+    out = tmp_path / "set.npz"
+    with pytest.raises(WriteError, match=r"set\.npz"):
+        pack._write_shards(out, arrays, {"version": 1}, compress=False, shard_bytes=20_000)
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(np.lib.format, "write_array", real)
+    files = pack._write_shards(out, arrays, {"version": 1}, compress=False, shard_bytes=20_000)
+    assert files[0] == out and len(files) > 1  # the main file and its shards, nothing else
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in files)
