@@ -133,3 +133,19 @@ def make_tiny_dataset(folder: Path, size: int = 40, y0: int = 44, x0: int = 44) 
 def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """See :func:`make_tiny_dataset` (made once per test session)."""
     return make_tiny_dataset(tmp_path_factory.mktemp("tiny-set"))
+
+
+@pytest.fixture
+def plugins(monkeypatch: pytest.MonkeyPatch):
+    """``plugins(*entry_points)``: a fresh method table whose built-ins load with these
+    plugins (``shared_inputs.EntryPoint``), as if those packages were installed."""
+    from mcdenoise import registry
+
+    def install(*eps: object) -> None:
+        monkeypatch.setattr(registry, "_REGISTRY", {})
+        monkeypatch.setattr(registry, "_ALIASES", {})
+        monkeypatch.setattr(registry, "_PLUGINS", set())
+        monkeypatch.setattr(registry, "_builtins", {"state": "no"})
+        monkeypatch.setattr(registry, "_entry_points", lambda: list(eps))
+
+    return install

@@ -14,6 +14,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
+from shared_inputs import EntryPoint
 
 from mcdenoise import registry
 from mcdenoise.errors import InputError
@@ -30,41 +31,15 @@ def _double(b: FeatureBuffers, p: Any, d: torch.device) -> torch.Tensor:
 DOUBLE = Method("plug-double", "twice the colour", ("color",), (), {}, _double)
 
 
-class _EntryPoint:
-    """What ``importlib.metadata.entry_points`` yields: ``name``, ``value``, ``load()``."""
-
-    def __init__(self, name: str, value: str, obj: Any = None, error: Exception | None = None):
-        self.name, self.value, self._obj, self._error = name, value, obj, error
-
-    def load(self) -> Any:
-        if self._error is not None:
-            raise self._error
-        return self._obj
-
-
-@pytest.fixture
-def plugins(monkeypatch: pytest.MonkeyPatch):
-    """``plugins(*entry_points)``: a fresh table whose built-ins load with these plugins."""
-
-    def install(*eps: _EntryPoint) -> None:
-        monkeypatch.setattr(registry, "_REGISTRY", {})
-        monkeypatch.setattr(registry, "_ALIASES", {})
-        monkeypatch.setattr(registry, "_PLUGINS", set())
-        monkeypatch.setattr(registry, "_builtins", {"state": "no"})
-        monkeypatch.setattr(registry, "_entry_points", lambda: list(eps))
-
-    return install
-
-
 def test_plugins_join_the_table_and_broken_ones_say_why(plugins) -> None:
     triple = Method("plug-triple", "x3", ("color",), (), {}, lambda b, p, d: b["color"] * 3)
     plugins(
-        _EntryPoint("double", "plug:DOUBLE", DOUBLE),
-        _EntryPoint("many", "plug:methods", lambda: [triple]),
-        _EntryPoint("gone", "missing_pkg:M", error=ModuleNotFoundError("No module named 'x'")),
-        _EntryPoint("wrong", "plug:NOT_A_METHOD", 42),
-        _EntryPoint("exits", "plug:EXITS", error=SystemExit(2)),
-        _EntryPoint("nlm", "plug:MY_NLM", DOUBLE.__class__(**{**DOUBLE.__dict__, "name": "nlm"})),
+        EntryPoint("double", "plug:DOUBLE", DOUBLE),
+        EntryPoint("many", "plug:methods", lambda: [triple]),
+        EntryPoint("gone", "missing_pkg:M", error=ModuleNotFoundError("No module named 'x'")),
+        EntryPoint("wrong", "plug:NOT_A_METHOD", 42),
+        EntryPoint("exits", "plug:EXITS", error=SystemExit(2)),
+        EntryPoint("nlm", "plug:MY_NLM", DOUBLE.__class__(**{**DOUBLE.__dict__, "name": "nlm"})),
     )
     names = {m.name for m in registry.methods()}
     assert {"plug-double", "plug-triple", "gone", "wrong", "plugin:nlm"} <= names

@@ -8,23 +8,9 @@ import json
 from pathlib import Path
 
 import pytest
-import torch
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
-
-from mcdenoise.io import FeatureBuffers, save_buffers
-
-
-def _noisy_with_halves(path: Path, size: int = 24) -> Path:
-    g = torch.Generator().manual_seed(1)
-    _y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    mu = (0.2 + 0.6 * (x > size // 2)).float().expand(3, -1, -1)
-    a = mu * (1 + 0.5 * torch.randn(3, size, size, generator=g)).clamp_min(0)
-    b = mu * (1 + 0.5 * torch.randn(3, size, size, generator=g)).clamp_min(0)
-    var = torch.full((3, size, size), 0.02)
-    bufs = {"color": (a + b) / 2, "color_var": var / 2, "color_a": a, "color_b": b}
-    save_buffers(path, FeatureBuffers(bufs | {"color_a_var": var, "color_b_var": var}, spp=8))
-    return path
+from shared_inputs import noisy_with_halves
 
 
 def run(*args: str):
@@ -34,7 +20,7 @@ def run(*args: str):
 def test_eval_without_ref_reports_the_estimates(tmp_path: Path) -> None:
     from mcdenoise.eval.estimate import OWN
 
-    src = _noisy_with_halves(tmp_path / "in.exr")
+    src = noisy_with_halves(tmp_path / "in.exr")
     outs = tmp_path / "outs"
     outs.mkdir()
     for m in ("cross-bilateral", "nlm"):
@@ -77,7 +63,7 @@ def test_eval_without_ref_reports_the_estimates(tmp_path: Path) -> None:
 def test_one_output_keeps_its_own_normaliser(tmp_path: Path) -> None:
     from mcdenoise.eval.estimate import OWN
 
-    src = _noisy_with_halves(tmp_path / "in.exr")
+    src = noisy_with_halves(tmp_path / "in.exr")
     out = tmp_path / "xbf.exr"
     r = run("denoise", str(src), "-m", "cross-bilateral", "--estimate-error", "-o", str(out),
             "--threads", "1")  # fmt: skip
@@ -91,7 +77,7 @@ def test_one_output_keeps_its_own_normaliser(tmp_path: Path) -> None:
 
 
 def test_eval_without_ref_and_without_estimates_is_refused(tmp_path: Path) -> None:
-    src = _noisy_with_halves(tmp_path / "in.exr")
+    src = noisy_with_halves(tmp_path / "in.exr")
     out = tmp_path / "plain.exr"
     assert run("denoise", str(src), "-m", "cross-bilateral", "-o", str(out)).exit_code == 0
     r = run("eval", str(out), "-o", str(tmp_path / "rep"))
@@ -103,7 +89,7 @@ def test_eval_without_ref_and_without_estimates_is_refused(tmp_path: Path) -> No
 def test_a_method_that_needs_halves_cannot_be_judged_by_them(tmp_path: Path) -> None:
     """nfor runs on the halves itself: on one half alone it has none, so --estimate-error
     refuses it in one line and writes nothing."""
-    src = _noisy_with_halves(tmp_path / "in.exr")
+    src = noisy_with_halves(tmp_path / "in.exr")
     out = tmp_path / "nfor.exr"
     r = run("denoise", str(src), "-m", "nfor", "--estimate-error", "-o", str(out))
     # a slow-machine warning may come first; the error itself is one line

@@ -29,6 +29,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
+from shared_inputs import EntryPoint, noisy_with_halves
 
 from mcdenoise import registry
 from mcdenoise.errors import InputError
@@ -83,20 +84,6 @@ def _marker_command(prog: Path) -> str:
     return f"{PY} {prog} {{color}} {{output:pfm}}"
 
 
-def _noisy_with_halves(path: Path, size: int = 24) -> Path:
-    """A small render with half buffers (what ``render --halves`` writes), made without
-    Mitsuba (as tests/cli/test_eval_without_reference.py does)."""
-    g = torch.Generator().manual_seed(1)
-    _y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    mu = (0.2 + 0.6 * (x > size // 2)).float().expand(3, -1, -1)
-    a = mu * (1 + 0.5 * torch.randn(3, size, size, generator=g)).clamp_min(0)
-    b = mu * (1 + 0.5 * torch.randn(3, size, size, generator=g)).clamp_min(0)
-    var = torch.full((3, size, size), 0.02)
-    bufs = {"color": (a + b) / 2, "color_var": var / 2, "color_a": a, "color_b": b}
-    save_buffers(path, FeatureBuffers(bufs | {"color_a_var": var, "color_b_var": var}, spp=8))
-    return path
-
-
 def _rewrite_header(path: Path, method: str, params: dict[str, Any]) -> None:
     """What someone who sends an output folder can do: name any method in its header."""
     img = read_exr(path)
@@ -116,7 +103,7 @@ def test_an_output_header_naming_a_command_runs_nothing(tmp_path: Path, kind: st
     ``--ref``, which re-runs each header's method on the halves). Nothing runs; one line
     names the file and why; the other output is still re-estimated."""
     prog, marker = _marker_program(tmp_path)
-    src = _noisy_with_halves(tmp_path / "in.exr")
+    src = noisy_with_halves(tmp_path / "in.exr")
     out = tmp_path / "out"
     args = ["denoise", str(src), "-m", "nlm,cross-bilateral", "--estimate-error", "-o", str(out)]
     r = CliRunner().invoke(main, [*args, "--threads", "1"])
@@ -184,7 +171,7 @@ def test_an_output_header_with_odd_params_is_a_note_not_an_internal_error(
     """``mcdenoise:params`` that is JSON but not an object, nested past the recursion limit,
     or of the wrong type for a parameter: the row keeps its header value with a note saying
     why it did not run again (was: internal error, exit 1, no report)."""
-    src = _noisy_with_halves(tmp_path / "in.exr")
+    src = noisy_with_halves(tmp_path / "in.exr")
     out = tmp_path / "out"
     args = ["denoise", str(src), "-m", "nlm,cross-bilateral", "--estimate-error", "-o", str(out)]
     assert CliRunner().invoke(main, [*args, "--threads", "1"]).exit_code == 0
@@ -202,7 +189,7 @@ def test_a_header_method_with_control_characters_keeps_the_table_one_line_a_row(
 ) -> None:
     """A method name with a newline or a terminal escape (a hand-edited header) is shown
     escaped in the tables of ``eval`` with and without ``--ref``: one line per row."""
-    src = _noisy_with_halves(tmp_path / "in.exr")
+    src = noisy_with_halves(tmp_path / "in.exr")
     out = tmp_path / "out"
     args = ["denoise", str(src), "-m", "nlm,cross-bilateral", "--estimate-error", "-o", str(out)]
     assert CliRunner().invoke(main, [*args, "--threads", "1"]).exit_code == 0
@@ -335,30 +322,6 @@ def test_allow_commands_is_refused_without_an_experiment(tmp_path: Path) -> None
 # --- 2. a plugin is never the default ---------------------------------------------------------
 
 
-class _EntryPoint:
-    """What ``importlib.metadata.entry_points`` yields (the seam of tests/test_plugins.py)."""
-
-    def __init__(self, name: str, value: str, obj: Any) -> None:
-        self.name, self.value, self._obj = name, value, obj
-
-    def load(self) -> Any:
-        return self._obj
-
-
-@pytest.fixture
-def plugins(monkeypatch: pytest.MonkeyPatch):
-    """``plugins(*entry_points)``: a fresh table whose built-ins load with these plugins."""
-
-    def install(*eps: _EntryPoint) -> None:
-        monkeypatch.setattr(registry, "_REGISTRY", {})
-        monkeypatch.setattr(registry, "_ALIASES", {})
-        monkeypatch.setattr(registry, "_PLUGINS", set())
-        monkeypatch.setattr(registry, "_builtins", {"state": "no"})
-        monkeypatch.setattr(registry, "_entry_points", lambda: list(eps))
-
-    return install
-
-
 def _grab(b: FeatureBuffers, p: Any, d: torch.device) -> torch.Tensor:
     return b["color"] * 0
 
@@ -367,7 +330,7 @@ def test_a_plugin_of_top_priority_is_not_the_default(plugins) -> None:
     """A plugin ranked above every built-in runs when named (or with ``all``), never
     unasked: ``denoise`` without ``--method`` still runs a built-in."""
     greedy = Method("plug-greedy", "takes over", ("color",), (), {}, _grab, priority=10**6)
-    plugins(_EntryPoint("greedy", "plug:GREEDY", greedy))
+    plugins(EntryPoint("greedy", "plug:GREEDY", greedy))
     fb = FeatureBuffers({"color": torch.ones(3, 8, 8)})
     from mcdenoise.denoise import denoise, parse_methods
 
@@ -389,7 +352,7 @@ def test_a_plugin_cannot_take_a_builtin_name_by_registering_it(plugins) -> None:
     def takes_nlm() -> Method:
         return registry.register(Method("nlm", "not nlm", ("color",), (), {}, _grab, 10**6))
 
-    plugins(_EntryPoint("sly", "plug:sly", takes_nlm))
+    plugins(EntryPoint("sly", "plug:sly", takes_nlm))
     fb = FeatureBuffers({"color": torch.ones(3, 8, 8)})
     from mcdenoise.denoise import denoise
 

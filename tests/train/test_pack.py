@@ -14,6 +14,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
+from test_train_kpcn import TINY as KPCN_TINY
 
 from mcdenoise.errors import InputError
 from mcdenoise.models.encoders import SOURCES
@@ -24,22 +25,8 @@ from mcdenoise.train.kpcn import PACK_KEYS, make_prepare, pack_kpcn, train_kpcn
 from mcdenoise.train.pack import FLOAT16_MAX, is_pack, pack_meta, read_pack
 
 REPO = Path(__file__).resolve().parents[2]
-#: A tiny kpcn (as tests/train/test_train_kpcn.py); prefilter=auto: the basic crops' tensors too.
-TINY = {
-    "model": "kpcn",
-    "channels": "8,8,8",
-    "kernel": 5,
-    "scales": 3,
-    "patch": 16,
-    "margin": 8,
-    "batch": 4,
-    "steps": 4,
-    "epoch_steps": 2,
-    "warmup": 1,
-    "val_fraction": 0.25,
-    "threads": 1,
-    "prefilter": "auto",
-}
+#: The tiny kpcn of tests/train/test_train_kpcn.py; prefilter=auto: the basic crops' tensors too.
+TINY = {**KPCN_TINY, "prefilter": "auto"}
 
 #: one intra-op thread for this module (tests/conftest.py)
 ONE_THREAD = True
