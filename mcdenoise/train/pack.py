@@ -299,7 +299,12 @@ def pack_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     with _open(p) as z:
         if _META not in z.files:
             raise InputError(f"{p}: not a training pack (no metadata)")
-        meta = json.loads(str(z[_META]))
+        try:
+            meta = json.loads(str(z[_META]))
+        except (ValueError, RecursionError):
+            meta = None
+    if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+        raise InputError(f"{p}: not a training pack (its metadata is not a pack's)")
     if meta.get("version") != PACK_VERSION:
         raise InputError(f"{p}: pack version {meta.get('version')!r}, expected {PACK_VERSION}")
     return meta
@@ -330,14 +335,31 @@ def read_pack(
             f"{path}: the pack was prepared with another config ({'; '.join(diff)}); "
             "pack the data again with these settings"
         )
+    try:
+        return _read_items(path, meta, crop)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as err:
+        # a pack is a file from anywhere: metadata that does not hold together is refused
+        why = f"{type(err).__name__}: {err}"[:200]
+        raise InputError(f"{path}: not a valid training pack ({why})") from None
+
+
+def _read_items(
+    path: Path, meta: dict[str, Any], crop: int
+) -> tuple[list[Item], list[Item], LoadReport]:
+    """:func:`read_pack`'s reading, after the config check. The shards are the files
+    :func:`shard_path` names beside ``path`` (never a path the metadata gives: a pack may
+    come from anyone)."""
     report = LoadReport(skipped=[(str(a), str(b)) for a, b in meta["skipped"]])
     train: list[Item] = []
     val: list[Item] = []
     shard_of: dict[str, int] = meta.get("shard_of", {})
     with contextlib.ExitStack() as stack:
         files = [stack.enter_context(_open(path))]
-        for name in meta.get("shards", []):
-            files.append(stack.enter_context(_open(path.parent / name)))
+        for i, name in enumerate(meta.get("shards", []), start=1):
+            shard = shard_path(path, i)
+            if name != shard.name:
+                raise ValueError(f"shard {i} is named {name!r}, not {shard.name!r}")
+            files.append(stack.enter_context(_open(shard)))
         cache: dict[str, torch.Tensor] = {}
 
         def tensor(name: str) -> torch.Tensor:

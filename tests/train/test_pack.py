@@ -298,3 +298,29 @@ def test_a_pack_write_that_fails_leaves_no_file_and_no_temporary(tmp_path, monke
     files = pack._write_shards(out, arrays, {"version": 1}, compress=False, shard_bytes=20_000)
     assert files[0] == out and len(files) > 1  # the main file and its shards, nothing else
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in files)
+
+
+def test_a_pack_from_elsewhere_is_data(tmp_path) -> None:
+    """A pack whose metadata names a shard elsewhere (``../secret.npz``) or does not hold
+    together is refused in one line naming the pack; no path it gives is opened."""
+    import json
+
+    import numpy as np
+
+    from mcdenoise.train import pack
+    from mcdenoise.train.config import TrainConfig
+
+    def make(meta: object) -> None:
+        np.savez(tmp_path / "set.npz", **{pack._META: np.array(json.dumps(meta))})
+
+    good = {"version": pack.PACK_VERSION, "config": {}, "items": [], "skipped": []}
+    cfg = TrainConfig(model="kpcn", data=str(tmp_path / "set.npz"))
+    for meta, why in [
+        ({**good, "shards": ["../secret.npz"]}, "not 'set.part1.npz'"),
+        ({**good, "items": [{"image": 1}]}, "not a valid training pack"),
+        ([1, 2], "not a training pack"),
+    ]:
+        make(meta)
+        with pytest.raises(InputError, match=r"set\.npz") as info:
+            pack.read_pack(cfg, crop=8, keys=())
+        assert why in str(info.value) and len(str(info.value).splitlines()) == 1
