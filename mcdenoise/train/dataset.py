@@ -201,20 +201,24 @@ def load_items(
         entries: from :func:`scan_dataset`.
         prepare: model hook ``(buffers, reference (3, H, W)) -> {name: (C, H, W)}``; it may raise
             :class:`~mcdenoise.errors.McdenoiseError` (e.g. a missing buffer) to skip a level.
+            A hook with the attribute ``reference_buffers = True`` gets the reference's
+            :class:`~mcdenoise.io.buffers.FeatureBuffers` (its features too) instead.
         min_size: smallest acceptable image edge (patch + margins).
         progress: report the loading on stderr (:func:`mcdenoise.progress.progress_bar`:
             a bar on a terminal, a line per stage in a log).
     """
     report = LoadReport()
     items: list[Item] = []
-    refs: dict[Path, Tensor] = {}
+    refs: dict[Path, FeatureBuffers] = {}
+    whole_reference = bool(getattr(prepare, "reference_buffers", False))
     keys: tuple[str, ...] | None = None
     bar = progress_bar(entries, desc="loading", unit="level", progress=progress, leave=False)
     for e in bar:
         try:
             if e.reference not in refs:
-                refs = {e.reference: _read(e.reference, None)["color"]}
-            ref = refs[e.reference]
+                refs = {e.reference: _read(e.reference, None)}
+            ref_buffers = refs[e.reference]
+            ref = ref_buffers["color"]
             why = check_reference(ref)
             if why is None:
                 buffers = _read(e.path, e.part)
@@ -225,7 +229,7 @@ def load_items(
             if why is not None:
                 report.skipped.append((e.name, why))
                 continue
-            tensors = prepare(buffers, ref)
+            tensors = prepare(buffers, ref_buffers if whole_reference else ref)
         except McdenoiseError as err:
             report.skipped.append((e.name, str(err)))
             continue

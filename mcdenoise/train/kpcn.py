@@ -292,11 +292,14 @@ def make_prepare(cfg: TrainConfig, sources: Sequence[str]) -> Prepare:
     reference, and the exposure normalisation."""
 
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
-        t = prepare_tensors(buffers, "full", "all" if cfg.prefilter == "all" else "off")
+        full_mode = cfg.prefilter if cfg.prefilter in ("all", "learned") else "off"
+        t = prepare_tensors(buffers, "full", full_mode)
         if cfg.prefilter != "off" and "basic" in sources:
             # what the basic source gets at inference: no feature variances, so the albedo
-            # and normal are prefiltered with a variance estimated from themselves
-            basic = prepare_tensors(buffers.subset(list(SOURCES["basic"])), "basic", "auto")
+            # and normal are prefiltered with a variance estimated from themselves (auto,
+            # all), or by the learned prefilter from what the file has (learned)
+            basic_mode = "learned" if cfg.prefilter == "learned" else "auto"
+            basic = prepare_tensors(buffers.subset(list(SOURCES["basic"])), "basic", basic_mode)
             t.update({f"{k}{BASIC_SUFFIX}": basic[k] for k in BASIC_PREFILTERED})
         t["reference"] = ref
         if cfg.normalize_exposure:

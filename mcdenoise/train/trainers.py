@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.errors import InputError
-from mcdenoise.train import kalantari, kpcn, kpcn_temporal, nnao
+from mcdenoise.train import auxnet, kalantari, kpcn, kpcn_temporal, nnao
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig, load_config
 from mcdenoise.train.dataset import LoadReport
@@ -61,6 +61,10 @@ def _train_kpcn_temporal(cfg: TrainConfig, out: str | Path, **kwargs: Any):
 
 def _train_nnao(cfg: TrainConfig, out: str | Path, **kwargs: Any):
     return nnao.train_nnao(cfg, out, **kwargs)
+
+
+def _train_auxnet(cfg: TrainConfig, out: str | Path, **kwargs: Any):
+    return auxnet.train_auxnet(cfg, out, **kwargs)
 
 
 _KALANTARI_KEYS = frozenset({"hidden", "passes", "regional", "guides"})
@@ -115,6 +119,13 @@ TRAINERS: tuple[Trainer, ...] = (
         "per-pixel MLP predicting AO from a G-buffer neighbourhood (Holden 2016)",
         _train_nnao,
         frozenset({"hidden"}),
+    ),
+    Trainer(
+        "auxnet",
+        "kernel-predicting U-Net prefiltering noisy albedo and normal (kpcn -p "
+        "prefilter=learned); -s channels=24,32,48",
+        _train_auxnet,
+        frozenset({"channels", "augment"}),
     ),
 )
 

@@ -36,7 +36,7 @@ def calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, TrainConfig, bool]
 
 def test_every_model_has_one_trainer() -> None:
     names = [t.name for t in TRAINERS]
-    assert names == ["kalantari-xbf", "kalantari-nlm", "kpcn", "kpcn-temporal", "nnao"]
+    assert names == ["kalantari-xbf", "kalantari-nlm", "kpcn", "kpcn-temporal", "nnao", "auxnet"]
     assert get_trainer("kpcn").accepts >= {"finetune_encoder", "base", "channels"}
     with pytest.raises(InputError, match="unknown model 'unet'; trainable: kalantari-xbf"):
         get_trainer("unet")

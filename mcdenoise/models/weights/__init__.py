@@ -15,6 +15,8 @@ import os
 from pathlib import Path
 
 from mcdenoise.modelfile import CheckpointError, model_file, read_card
+from mcdenoise.models.auxnet import FORMAT as AUXNET_FORMAT
+from mcdenoise.models.auxnet import AuxNet
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.kpcn import FORMAT as KPCN_FORMAT
 from mcdenoise.models.kpcn import KpcnModel
@@ -73,7 +75,11 @@ def weights_digest(method: str, model: str) -> str:
 
 
 @functools.lru_cache(maxsize=8)
-def _load(path: str, mtime_ns: int, kind: str) -> KalantariModel | KpcnModel | TemporalKpcn:
+def _load(
+    path: str, mtime_ns: int, kind: str
+) -> KalantariModel | KpcnModel | TemporalKpcn | AuxNet:
+    if kind == "auxnet":
+        return AuxNet.load(path)
     if kind == "kpcn-temporal":
         return TemporalKpcn.load(path)
     return KpcnModel.load(path) if kind == "kpcn" else KalantariModel.load(path)
@@ -103,6 +109,13 @@ def load_kpcn_temporal(path: str | os.PathLike[str]) -> TemporalKpcn:
     return _load(str(p.resolve()), p.stat().st_mtime_ns, "kpcn-temporal")  # type: ignore[return-value]
 
 
+def load_auxnet(path: str | os.PathLike[str]) -> AuxNet:
+    """The auxiliary-buffer prefilter in ``path`` (a model file or a run folder), cached (same
+    errors as :func:`load_kalantari`)."""
+    p = model_file(path)
+    return _load(str(p.resolve()), p.stat().st_mtime_ns, "auxnet")  # type: ignore[return-value]
+
+
 def model_method(path: str | os.PathLike[str]) -> str:
     """The method a model file belongs to: ``kpcn``, ``kpcn-temporal``, ``nnao``,
     ``kalantari-xbf`` or ``kalantari-nlm``."""
@@ -113,4 +126,6 @@ def model_method(path: str | os.PathLike[str]) -> str:
         return "kpcn-temporal"
     if card.get("format") == NNAO_FORMAT:
         return "nnao"
+    if card.get("format") == AUXNET_FORMAT:
+        return "auxnet"
     return f"kalantari-{card.get('kind', 'xbf')}"

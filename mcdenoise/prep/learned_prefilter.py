@@ -1,0 +1,126 @@
+"""The learned prefilter of the albedo and normal (``kpcn -p prefilter=learned``, issue 34).
+
+:func:`learned_prefilter` runs :class:`~mcdenoise.models.auxnet.AuxNet` (the shipped weights
+``models/weights/auxnet.pt`` unless a model is given) on an image's noisy albedo and normal,
+tile by tile so that a 4K image needs no more memory than a 1 MP one, and returns them
+filtered; the other features are left to the caller (``prep/kpcn.py`` prefilters depth and
+position as ``adaptive`` does). The colour it sees is brought to the standard exposure first
+(:func:`mcdenoise.prep.kpcn.exposure_scale`'s range), as the trainer
+(:mod:`mcdenoise.train.auxnet`) showed it. How the weights were made:
+``data/recipes/auxnet.md``; what it buys: ``docs/results/aux-prefilter.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from mcdenoise.errors import InputError
+from mcdenoise.models.auxnet import KINDS, AuxNet, net_inputs
+from mcdenoise.prep.inputs import quantile_subsampled
+
+#: Tile edge (pixels of output) and context on each side: the U-Net's receptive field is
+#: about 2 · (2 + 4 + 8) + the kernel radius, so 32 pixels of context give every output
+#: pixel the same inputs as a whole-image pass (to float rounding); the tile origins are
+#: multiples of the net's pooling factor, so its average pools see the same blocks.
+TILE = 512
+CONTEXT = 32
+#: Where the 90th percentile of the colour's luminance is brought before the net sees it
+#: (about the training renders' range; the same as ``prep.kpcn.EXPOSURE_RANGE``).
+EXPOSURE_RANGE = (0.2, 1.0)
+
+
+def standard_exposure(color: Tensor) -> float:
+    """Factor bringing the 90th percentile of ``color``'s luminance into
+    :data:`EXPOSURE_RANGE` (1 for a black or non-finite image)."""
+    lum = color.mean(dim=-3).flatten()
+    level = float(quantile_subsampled(lum, torch.tensor(0.9)))
+    if not math.isfinite(level) or level <= 0:
+        return 1.0
+    return min(max(level, EXPOSURE_RANGE[0]), EXPOSURE_RANGE[1]) / level
+
+
+def shipped_auxnet() -> AuxNet:
+    """The shipped weights (cached).
+
+    Raises:
+        InputError: this install has none.
+    """
+    from mcdenoise.models.weights import load_auxnet, shipped_model_path
+
+    path = shipped_model_path("auxnet")
+    if not path.is_file():
+        raise InputError("prefilter=learned: no shipped auxnet weights in this install")
+    return load_auxnet(path)
+
+
+@torch.no_grad()
+def learned_prefilter(
+    features: Mapping[str, Tensor],
+    variances: Mapping[str, Tensor],
+    color: Tensor,
+    model: AuxNet | None = None,
+    *,
+    tile: int = TILE,
+) -> dict[str, Tensor]:
+    """The albedo and normal of ``features`` filtered by the net; ``{}`` without both.
+
+    Args:
+        features: name -> ``(1, C, H, W)`` sanitised feature (albedo and normal as written).
+        variances: name -> ``(1, 1 or C, H, W)`` variance of the mean, for those that have one
+            (used only when both the albedo and the normal have one, as in training).
+        color: ``(1, 3, H, W)`` sanitised linear colour.
+        model: the net (default :func:`shipped_auxnet`).
+        tile: output tile edge (rounded up to the net's pooling factor).
+    """
+    if not all(k in features and features[k].shape[1] == c for k, c in KINDS.items()):
+        return {}
+    net = model if model is not None else shipped_auxnet()
+    param = next(net.parameters())
+    albedo = features["albedo"].to(param.device, torch.float32)
+    normal = features["normal"].to(param.device, torch.float32)
+    av, nv = variances.get("albedo"), variances.get("normal")
+    if av is None or nv is None:
+        av = nv = None
+    else:
+        av, nv = av.to(albedo), nv.to(albedo)
+    col = color.to(albedo) * standard_exposure(color)
+    x = net_inputs(albedo, normal, col, av, nv).to(param.dtype)
+    m = net.multiple
+    tile = max(m, -(-tile // m) * m)
+    ctx = -(-CONTEXT // m) * m
+    h, w = x.shape[-2:]
+    out_a = torch.empty_like(albedo)
+    out_n = torch.empty_like(normal)
+    for y0 in range(0, h, tile):
+        for x0 in range(0, w, tile):
+            y1, x1 = min(y0 + tile, h), min(x0 + tile, w)
+            ya, xa = max(0, y0 - ctx), max(0, x0 - ctx)
+            yb, xb = min(h, y1 + ctx), min(w, x1 + ctx)
+            ph, pw = (-(yb - ya)) % m, (-(xb - xa)) % m
+            crop = x[..., ya:yb, xa:xb]
+            if ph or pw:
+                crop = F.pad(crop, (0, pw, 0, ph), mode="replicate")
+            weights = net(crop)[..., : yb - ya, : xb - xa]
+            bufs = {"albedo": albedo[..., ya:yb, xa:xb], "normal": normal[..., ya:yb, xa:xb]}
+            filt = net.filter(weights, bufs)
+            sy, sx = slice(y0 - ya, y1 - ya), slice(x0 - xa, x1 - xa)
+            out_a[..., y0:y1, x0:x1] = filt["albedo"][..., sy, sx]
+            out_n[..., y0:y1, x0:x1] = filt["normal"][..., sy, sx]
+    dtype = features["albedo"].dtype
+    device = features["albedo"].device
+    return {"albedo": out_a.to(device, dtype), "normal": out_n.to(device, dtype)}
+
+
+__all__ = [
+    "CONTEXT",
+    "EXPOSURE_RANGE",
+    "TILE",
+    "learned_prefilter",
+    "shipped_auxnet",
+    "standard_exposure",
+]
