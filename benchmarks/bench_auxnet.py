@@ -4,8 +4,10 @@ reference's, and what it costs.
 For every image and level of the out-of-distribution set (``data/generated/ood``, rendered by
 ``python benchmarks/render_ood.py``; never used for training or tuning) the albedo and normal
 as ``kpcn`` would see them with ``prefilter=off`` (as written), ``adaptive`` (the hand-tuned
-NLM of ``prep/aux_prefilter.py``, the default before issue 34) and ``learned`` (the shipped
-``auxnet``, or ``--model``) are compared with the canonical reference's (2048 spp):
+NLM of ``prep/aux_prefilter.py``, the default), ``net`` (the shipped ``auxnet``, or
+``--model``, on every pixel) and ``learned`` (``kpcn -p prefilter=learned``: the net where the
+pixel mixes surfaces, ``adaptive`` elsewhere) are compared with the canonical reference's
+(2048 spp):
 
 * albedo relMSE (ε = 0.01) and the same over the 1 % of pixels where the noisy albedo is
   farthest from the reference (the mixing pixels: defocused edges, silhouettes);
@@ -40,10 +42,10 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.models.weights import load_auxnet, shipped_model_path
 from mcdenoise.prep.aux_prefilter import prefilter_aux
 from mcdenoise.prep.inputs import prepare_inputs
-from mcdenoise.prep.learned_prefilter import learned_prefilter
+from mcdenoise.prep.learned_prefilter import learned_aux, learned_prefilter
 from mcdenoise.stats import geometric_mean
 
-MODES = ("off", "adaptive", "learned")
+MODES = ("off", "adaptive", "net", "learned")
 EPS = 0.01
 
 
@@ -58,7 +60,9 @@ def features(b: FeatureBuffers, mode: str, net) -> dict[str, torch.Tensor]:
     if mode == "adaptive":
         f.update(prefilter_aux(f, inp.feature_vars, inp.color, inp.color_var))
     elif mode == "learned":
-        f.update(learned_prefilter(f, inp.feature_vars, inp.color, net))
+        f.update(learned_aux(f, inp.feature_vars, inp.color, inp.color_var, net))
+    elif mode == "net":
+        f.update(learned_prefilter(f, inp.feature_vars, inp.color, inp.color_var, net))
     return f
 
 
@@ -86,7 +90,8 @@ def speed(item: bench_ood.Item, net, reps: int = 3) -> dict[str, float]:
     inp = prepare_inputs(big, features=("albedo", "normal"), prefilter=False)
     runs = {
         "adaptive": lambda: prefilter_aux(inp.features, {}, inp.color, inp.color_var),
-        "learned": lambda: learned_prefilter(inp.features, {}, inp.color, net),
+        "net": lambda: learned_prefilter(inp.features, {}, inp.color, inp.color_var, net),
+        "learned": lambda: learned_aux(inp.features, {}, inp.color, inp.color_var, net),
     }
     out = {}
     for name, fn in runs.items():

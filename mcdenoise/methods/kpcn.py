@@ -131,7 +131,7 @@ def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> 
 METHOD = Method(
     name="kpcn",
     summary="kernel-predicting CNN, source-aware encoder, 3-scale kernels (Bako 2017, "
-    "Vogels 2018); -p model=RUN, -p prefilter=adaptive|auto|all|off, -p exposure=auto|off",
+    "Vogels 2018); -p model=RUN, -p prefilter=adaptive|learned|auto|all|off, -p exposure=auto|off",
     requires=("color", "albedo", "normal"),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
     defaults={

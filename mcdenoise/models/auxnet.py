@@ -11,10 +11,12 @@ result stays in the buffer's range (an albedo never leaves ``[min, max]`` of its
 neighbourhood, a background normal of 0 stays 0) and a net trained on one renderer's buffers
 cannot invent values for another's.
 
-Inputs per pixel (:func:`net_inputs`, 13 channels): ``log1p`` of the albedo, the normal, the
+Inputs per pixel (:func:`net_inputs`, 15 channels): ``log1p`` of the albedo, the normal, the
 normal's length (shorter than 1 where a pixel's samples saw different orientations or the
-background), ``log1p`` of the colour brought to a standard exposure, and, where the file has
-them, the albedo's and normal's variances of the mean (as ``log1p(10·sqrt(v))``) with a flag
+background), ``log1p`` of the colour brought to a standard exposure, two noise levels (the
+colour's relative standard deviation and the albedo's, estimated from its neighbourhood: a
+file need not say how many samples it has, and without them a net blurs a clean 64-spp
+texture as it blurs a 4-spp one), and, where the file has them, the albedo's and normal's variances of the mean (as ``log1p(10·sqrt(v))``) with a flag
 channel saying whether they are present (files without variances get zeros and flag 0; the
 trainer shows every crop both ways).
 
@@ -51,7 +53,7 @@ FORMAT = "mcdenoise-auxnet-1"
 #: Buffer kinds the net filters, in output order, and their channel counts.
 KINDS = {"albedo": 3, "normal": 3}
 #: Input channels of :func:`net_inputs`.
-IN_CHANNELS = 13
+IN_CHANNELS = 15
 
 
 def _variance_channel(v: Tensor | None, like: Tensor) -> Tensor:
@@ -64,15 +66,22 @@ def net_inputs(
     albedo: Tensor,
     normal: Tensor,
     color: Tensor,
+    color_noise: Tensor,
+    albedo_noise: Tensor,
     albedo_var: Tensor | None = None,
     normal_var: Tensor | None = None,
 ) -> Tensor:
-    """The ``(B, 13, H, W)`` input of :class:`AuxNet`.
+    """The ``(B, 15, H, W)`` input of :class:`AuxNet`.
 
     Args:
         albedo, normal: ``(B, 3, H, W)`` noisy buffers as the renderer wrote them (sanitised).
         color: ``(B, 3, H, W)`` linear colour, already brought to the standard exposure
-            (:func:`mcdenoise.prep.kpcn.exposure_scale`).
+            (:func:`mcdenoise.prep.learned_prefilter.standard_exposure`).
+        color_noise: ``(B, 1, H, W)`` the colour's relative standard deviation of the mean
+            (``sqrt(color_var) / (luminance + 0.01)``): how many samples the pixel has, as
+            far as the net can tell on a file that does not say.
+        albedo_noise: ``(B, 1, H, W)`` the albedo's standard deviation estimated from its
+            own neighbourhood (:func:`mcdenoise.prep.inputs.estimate_feature_variance`).
         albedo_var, normal_var: ``(B, 1 or 3, H, W)`` variances of the mean, or ``None``.
     """
     has = albedo_var is not None and normal_var is not None
@@ -84,6 +93,8 @@ def net_inputs(
             normal,
             length,
             torch.log1p(color.clamp_min(0)),
+            torch.log1p(10.0 * color_noise.clamp_min(0)),
+            torch.log1p(10.0 * albedo_noise.clamp_min(0)),
             _variance_channel(albedo_var if has else None, albedo),
             _variance_channel(normal_var if has else None, albedo),
             flag,
@@ -121,7 +132,7 @@ class AuxCard:
     """
 
     widths: list[int] = field(default_factory=lambda: [24, 32, 48])
-    kernel: int = 5
+    kernel: int = 7
     training: dict[str, Any] = field(default_factory=dict)
     format: str = FORMAT
 
@@ -181,11 +192,12 @@ class AuxNet(nn.Module):
         self.dec = nn.ModuleList(_block(w[i] + w[i + 1], w[i]) for i in range(len(w) - 1))
         k2 = card.kernel * card.kernel
         self.head = nn.Conv2d(w[0], 4 * len(KINDS) * k2, 1)
-        # start at "keep the pixel": the centre tap dominates the first kernels
+        # start near a box filter with some preference for the pixel itself: a saturated
+        # centre tap would have no gradient
         nn.init.zeros_(self.head.weight)
         with torch.no_grad():
             bias = torch.zeros(len(KINDS), k2, 4)
-            bias[:, k2 // 2] = 3.0
+            bias[:, k2 // 2] = 1.0
             self.head.bias.copy_(bias.flatten())
 
     @property

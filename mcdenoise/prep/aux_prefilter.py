@@ -58,7 +58,7 @@ texture the reference keeps. Numbers and commands: ``docs/results/kpcn.md``.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Mapping
 
 import torch
 import torch.nn.functional as F
@@ -120,8 +120,6 @@ def prefilter_aux(
     color: Tensor,
     color_var: Tensor,
     settings: Mapping[str, object] = PREFILTER_ESTIMATED,
-    *,
-    only: Collection[str] | None = None,
 ) -> dict[str, Tensor]:
     """Every feature prefiltered by variance-normalised NLM (``settings``): steered by its
     variance buffer when ``variances`` has one, else by :func:`aux_feature_variance` with the
@@ -131,8 +129,6 @@ def prefilter_aux(
         features: name -> ``(B, C, H, W)`` normalised, not yet prefiltered feature.
         variances: name -> ``(B, 1 or C, H, W)`` variance of the mean, for those that have one.
         color, color_var: as :func:`aux_feature_variance`.
-        only: prefilter only these features (default all); the mixing measure still comes
-            from the raw normal.
 
     Returns:
         name -> prefiltered feature, same shapes and dtypes.
@@ -141,8 +137,6 @@ def prefilter_aux(
     mixing = mixing_mask(normal) if normal is not None and normal.shape[1] == 3 else None
     out = {}
     for name, f in features.items():
-        if only is not None and name not in only:
-            continue
         v = variances.get(name)
         if v is None:
             v = aux_feature_variance(f, color, color_var, mixing)

@@ -53,7 +53,7 @@ from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.models.encoders import FEATURE_VARS, SOURCES
 from mcdenoise.prep.aux_prefilter import prefilter_aux
 from mcdenoise.prep.inputs import PREFILTER_ESTIMATED, prepare_inputs, quantile_subsampled
-from mcdenoise.prep.learned_prefilter import learned_prefilter
+from mcdenoise.prep.learned_prefilter import learned_aux
 
 #: Tensors of a prepared image and their channel counts.
 PREPARED = {
@@ -72,8 +72,8 @@ PREFILTER_MODES = {
     "auto": "the features without a variance buffer (variance estimated from the feature)",
     "all": "every feature (its variance buffer when there is one, else estimated)",
     "off": "none: the features as the renderer wrote them",
-    "learned": "albedo and normal by the learned prefilter (prep/learned_prefilter.py), "
-    "depth and position as adaptive",
+    "learned": "adaptive, except the albedo and normal of pixels that mix surfaces: by the "
+    "learned prefilter (prep/learned_prefilter.py)",
 }
 #: Default ``prefilter`` mode.
 DEFAULT_PREFILTER = "adaptive"
@@ -179,12 +179,7 @@ def prepare_tensors(
         prefilter_settings=PREFILTER_ESTIMATED,
     )
     if prefilter == "learned":
-        learned = learned_prefilter(inp.features, inp.feature_vars, inp.color)
-        rest = [k for k in inp.features if k not in learned]
-        inp.features.update(
-            prefilter_aux(inp.features, inp.feature_vars, inp.color, inp.color_var, only=rest)
-        )
-        inp.features.update(learned)
+        inp.features.update(learned_aux(inp.features, inp.feature_vars, inp.color, inp.color_var))
     elif adaptive:
         inp.features.update(prefilter_aux(inp.features, inp.feature_vars, inp.color, inp.color_var))
     missing = [g for g in guides if g not in inp.features]

@@ -3,8 +3,8 @@
 :func:`learned_prefilter` runs :class:`~mcdenoise.models.auxnet.AuxNet` (the shipped weights
 ``models/weights/auxnet.pt`` unless a model is given) on an image's noisy albedo and normal,
 tile by tile so that a 4K image needs no more memory than a 1 MP one, and returns them
-filtered; the other features are left to the caller (``prep/kpcn.py`` prefilters depth and
-position as ``adaptive`` does). The colour it sees is brought to the standard exposure first
+filtered. :func:`learned_aux` is what ``kpcn -p prefilter=learned`` uses: the net's albedo and
+normal where the pixel mixes surfaces, the adaptive NLM elsewhere and for depth and position. The colour it sees is brought to the standard exposure first
 (:func:`mcdenoise.prep.kpcn.exposure_scale`'s range), as the trainer
 (:mod:`mcdenoise.train.auxnet`) showed it. How the weights were made:
 ``data/recipes/auxnet.md``; what it buys: ``docs/results/aux-prefilter.md``.
@@ -21,7 +21,8 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.models.auxnet import KINDS, AuxNet, net_inputs
-from mcdenoise.prep.inputs import quantile_subsampled
+from mcdenoise.prep.aux_prefilter import mixing_mask, prefilter_aux
+from mcdenoise.prep.inputs import estimate_feature_variance, quantile_subsampled
 
 #: Tile edge (pixels of output) and context on each side: the U-Net's receptive field is
 #: about 2 · (2 + 4 + 8) + the kernel radius, so 32 pixels of context give every output
@@ -58,11 +59,40 @@ def shipped_auxnet() -> AuxNet:
     return load_auxnet(path)
 
 
+def noise_channels(albedo: Tensor, color: Tensor, color_var: Tensor) -> tuple[Tensor, Tensor]:
+    """The colour's relative standard deviation of the mean and the albedo's standard
+    deviation estimated from its neighbourhood, each ``(B, 1, H, W)`` (inputs of the net)."""
+    lum = color.clamp_min(0).mean(dim=1, keepdim=True)
+    color_noise = color_var.clamp_min(0).mean(dim=1, keepdim=True).sqrt() / (lum + 0.01)
+    return color_noise, estimate_feature_variance(albedo).clamp_min(0).sqrt()
+
+
+def prefilter_inputs(
+    features: Mapping[str, Tensor],
+    variances: Mapping[str, Tensor],
+    color: Tensor,
+    color_var: Tensor,
+) -> Tensor:
+    """:func:`~mcdenoise.models.auxnet.net_inputs` of an image (float32, ``features``'
+    device); the variances are used only when both the albedo and the normal have one."""
+    albedo = features["albedo"].float()
+    normal = features["normal"].float().to(albedo.device)
+    av, nv = variances.get("albedo"), variances.get("normal")
+    if av is None or nv is None:
+        av = nv = None
+    else:
+        av, nv = av.to(albedo), nv.to(albedo)
+    col = color.to(albedo)
+    cn, an = noise_channels(albedo, col, color_var.to(albedo))
+    return net_inputs(albedo, normal, col * standard_exposure(col), cn, an, av, nv)
+
+
 @torch.no_grad()
 def learned_prefilter(
     features: Mapping[str, Tensor],
     variances: Mapping[str, Tensor],
     color: Tensor,
+    color_var: Tensor,
     model: AuxNet | None = None,
     *,
     tile: int = TILE,
@@ -73,7 +103,8 @@ def learned_prefilter(
         features: name -> ``(1, C, H, W)`` sanitised feature (albedo and normal as written).
         variances: name -> ``(1, 1 or C, H, W)`` variance of the mean, for those that have one
             (used only when both the albedo and the normal have one, as in training).
-        color: ``(1, 3, H, W)`` sanitised linear colour.
+        color, color_var: ``(1, 3, H, W)`` sanitised linear colour and ``(1, 1, H, W)`` its
+            variance of the mean (the renderer's or the estimate).
         model: the net (default :func:`shipped_auxnet`).
         tile: output tile edge (rounded up to the net's pooling factor).
     """
@@ -81,15 +112,9 @@ def learned_prefilter(
         return {}
     net = model if model is not None else shipped_auxnet()
     param = next(net.parameters())
+    x = prefilter_inputs(features, variances, color, color_var).to(param.device, param.dtype)
     albedo = features["albedo"].to(param.device, torch.float32)
     normal = features["normal"].to(param.device, torch.float32)
-    av, nv = variances.get("albedo"), variances.get("normal")
-    if av is None or nv is None:
-        av = nv = None
-    else:
-        av, nv = av.to(albedo), nv.to(albedo)
-    col = color.to(albedo) * standard_exposure(color)
-    x = net_inputs(albedo, normal, col, av, nv).to(param.dtype)
     m = net.multiple
     tile = max(m, -(-tile // m) * m)
     ctx = -(-CONTEXT // m) * m
@@ -116,10 +141,38 @@ def learned_prefilter(
     return {"albedo": out_a.to(device, dtype), "normal": out_n.to(device, dtype)}
 
 
+def learned_aux(
+    features: Mapping[str, Tensor],
+    variances: Mapping[str, Tensor],
+    color: Tensor,
+    color_var: Tensor,
+    model: AuxNet | None = None,
+) -> dict[str, Tensor]:
+    """Every feature as ``kpcn -p prefilter=learned`` prepares it: the net's albedo and normal
+    in the pixels that mix surfaces (:func:`~mcdenoise.prep.aux_prefilter.mixing_mask`: the
+    raw normal is short), the adaptive NLM (:func:`~mcdenoise.prep.aux_prefilter.prefilter_aux`)
+    everywhere else and for the other features.
+
+    Why not the net everywhere: trained on the random scenes, it smooths texture finer than a
+    pixel as if it were noise (``ood_fine_texture``: kpcn 0.40× OIDN's relMSE at 4 spp with
+    the adaptive prefilter, 1.32× with the net everywhere), while where the samples of a pixel
+    saw different surfaces (a defocused edge, thin emitters on a dark road) it is what the
+    hand-tuned filter is not (``docs/results/aux-prefilter.md``).
+    """
+    out = prefilter_aux(features, variances, color, color_var)
+    learned = learned_prefilter(features, variances, color, color_var, model)
+    if learned:
+        mixing = mixing_mask(features["normal"])
+        for name, value in learned.items():
+            out[name] = torch.where(mixing, value.to(out[name]), out[name])
+    return out
+
+
 __all__ = [
     "CONTEXT",
     "EXPOSURE_RANGE",
     "TILE",
+    "learned_aux",
     "learned_prefilter",
     "shipped_auxnet",
     "standard_exposure",

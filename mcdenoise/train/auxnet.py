@@ -6,16 +6,23 @@ reference's albedo and normal the targets (auxiliary buffers converge within a f
 samples, so any reference of the colour is more than clean enough for them). Images without
 an albedo (AO scenes) are reported and skipped.
 
-The loss is the L1 distance of ``log1p(albedo)`` plus that of the normal, over the crop's
-loss mask (the config's ``loss`` field is not used; the card records ``"loss_used":
-"l1-log-albedo+l1-normal"``). Augmentation, per crop: flips and 90° rotations, one RGB
-permutation of colour and albedo, the colour's exposure ×2^U(-2, 2) (the net sees the colour
+The loss is the squared error of ``log1p(albedo)`` (close to a relative error for albedos
+up to about 1, bounded for the glossy lobes' albedos far above it and for a black reference)
+plus the normal's squared error, over the crop's loss mask (the config's ``loss`` field is not
+used; the card records ``"loss_used": "mse-log-albedo+mse-normal"``). Tried and left
+(``docs/results/aux-prefilter.md``): an L1 loss (where a pixel's few samples saw a surface
+and the background, the reference is their coverage-weighted mean, which L1, seeking the
+median, does not; the net stayed the identity for 500 steps), and the albedo's relative
+squared error ``(p − r)² / (r² + ε)`` (ε = 0.01: every kernel collapsed onto one tap within
+250 steps; ε = 0.1: the net stayed at its starting blur for 750 steps).
+
+Augmentation, per crop: flips and 90° rotations, one RGB permutation of colour and albedo, the colour's exposure ×2^U(-2, 2) (the net sees the colour
 only as a guide), and half of the crops of images with feature variances shown without
 them (as a plain renderer file would come), so one net serves both kinds of file. Crops are
 drawn half in proportion to the noisy albedo's error. Validation (split by image): the loss
 over whole images, and the albedo's relative MSE before and after (``val_albedo_relmse``,
 ``val_albedo_relmse_noisy``). ``-s channels=`` sets the U-Net's widths, ``-s kernel=`` the
-kernel edge (default 5). Recipe: ``data/recipes/auxnet.md``.
+kernel edge (default 7). Recipe: ``data/recipes/auxnet.md``.
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.losses import relmse
 from mcdenoise.models.auxnet import AuxCard, AuxNet, net_inputs
 from mcdenoise.prep.inputs import prepare_inputs
-from mcdenoise.prep.learned_prefilter import standard_exposure
+from mcdenoise.prep.learned_prefilter import noise_channels, standard_exposure
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
     REFERENCE,
@@ -47,7 +54,7 @@ from mcdenoise.train.loop import TrainResult, run_training
 from mcdenoise.train.pack import load_training_data
 
 #: Kernel edge when the config says 0.
-DEFAULT_KERNEL = 5
+DEFAULT_KERNEL = 7
 #: Share of crops (of images with feature variances) shown without them.
 DROP_VARIANCE = 0.5
 #: Exposure augmentation of the guide colour, in stops either way.
@@ -74,9 +81,12 @@ def prepare(buffers: FeatureBuffers, reference: FeatureBuffers) -> dict[str, Ten
     a, n = inp.features["albedo"][0], inp.features["normal"][0]
     av, nv = inp.feature_vars.get("albedo"), inp.feature_vars.get("normal")
     has = av is not None and nv is not None
+    cn, an = noise_channels(inp.features["albedo"], inp.color, inp.color_var)
     return {
         "albedo": a,
         "normal": n,
+        "color_noise": cn[0],
+        "albedo_noise": an[0],
         "albedo_var": av[0].mean(0, keepdim=True) if has else _zeros(a),
         "normal_var": nv[0].mean(0, keepdim=True) if has else _zeros(a),
         "has_var": torch.full_like(a[:1], 1.0 if has else 0.0),
@@ -93,10 +103,16 @@ def batch_inputs(batch: dict[str, Tensor]) -> Tensor:
     """:func:`~mcdenoise.models.auxnet.net_inputs` of a batch, the variance channels zeroed
     for the crops whose ``has_var`` is 0."""
     x = net_inputs(
-        batch["albedo"], batch["normal"], batch["color"], batch["albedo_var"], batch["normal_var"]
+        batch["albedo"],
+        batch["normal"],
+        batch["color"],
+        batch["color_noise"],
+        batch["albedo_noise"],
+        batch["albedo_var"],
+        batch["normal_var"],
     )
     keep = batch["has_var"][:, :1, :1, :1]
-    return torch.cat([x[:, :10], x[:, 10:] * keep], dim=1)
+    return torch.cat([x[:, :12], x[:, 12:] * keep], dim=1)
 
 
 def aux_loss(
@@ -105,10 +121,9 @@ def aux_loss(
     """The training loss of a batch and the filtered buffers."""
     weights = model(batch_inputs(batch))
     out = model.filter(weights, {"albedo": batch["albedo"], "normal": batch["normal"]})
-    err_a = (
-        torch.log1p(out["albedo"].clamp_min(0)) - torch.log1p(batch[REFERENCE].clamp_min(0))
-    ).abs()
-    err_n = (out["normal"] - batch["ref_normal"]).abs()
+    log_ref = torch.log1p(batch[REFERENCE].clamp_min(0))
+    err_a = (torch.log1p(out["albedo"].clamp_min(0)) - log_ref).square()
+    err_n = (out["normal"] - batch["ref_normal"]).square()
     err = err_a.mean(1, keepdim=True) + err_n.mean(1, keepdim=True)
     if mask is None:
         return err.mean(), out
@@ -202,7 +217,7 @@ def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[AuxTask, PatchSa
     )
     description = {
         **describe_training(cfg, train_items, val_items),
-        "loss_used": "l1-log-albedo+l1-normal",
+        "loss_used": "mse-log-albedo+mse-normal",
     }
     return AuxTask(model, val_items, description), sampler, report
 

@@ -118,9 +118,9 @@ class TrainConfig:
             ``kpcn -p prefilter=`` does at inference on an input without feature variances
             (``auto`` or ``all``: the variance estimated from the feature; ``off``: as
             rendered). ``all`` also prefilters the ``full`` crops' features with their
-            variances; ``learned`` prefilters both sources' albedo and normal with the shipped
-            auxnet (``kpcn -p prefilter=learned``) and the ``full`` crops' depth and position
-            as ``adaptive`` does.
+            variances; ``adaptive`` and ``learned`` prepare both sources exactly as
+            ``kpcn -p prefilter=adaptive`` (the default) and ``learned`` do at inference
+            (``learned``: the albedo and normal by the shipped auxnet).
         amp: mixed precision on CUDA (``off``, ``bf16``, ``fp16``): the convolutions run in
             the low precision, the kernel softmax, kernel application and loss in float32.
         finetune_encoder: train only the encoder of this source against a frozen trunk
@@ -250,8 +250,8 @@ class TrainConfig:
             ),
             (self.exposure >= 0, f"exposure must be >= 0 stops, got {self.exposure}"),
             (
-                self.prefilter in ("auto", "all", "off", "learned"),
-                f"prefilter must be auto, all, off or learned, got {self.prefilter!r}",
+                self.prefilter in ("auto", "all", "off", "adaptive", "learned"),
+                f"prefilter must be auto, all, off, adaptive or learned, got {self.prefilter!r}",
             ),
             (self.amp in AMP_MODES, f"amp must be one of {', '.join(AMP_MODES)}, got {self.amp!r}"),
             (

@@ -28,6 +28,7 @@ Pipeline:
 from __future__ import annotations
 
 import os
+import platform
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -267,11 +268,34 @@ def load_split(
     return train_items, val_items, report
 
 
+def training_hardware(device: str) -> dict[str, Any]:
+    """The machine a model is trained on, for its card: the device, the CPU model and cores,
+    torch's intra-op threads and version, the GPU's name on CUDA."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            names = [ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")]
+        cpu = names[0] if names else cpu
+    except OSError:
+        pass
+    out: dict[str, Any] = {
+        "device": device,
+        "cpu": cpu,
+        "cpu_cores": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+    }
+    if device.startswith("cuda") and torch.cuda.is_available():
+        out["gpu"] = torch.cuda.get_device_name(torch.device(device))
+    return out
+
+
 def describe_training(
     cfg: Any, train_items: Sequence[Item], val_items: Sequence[Item]
 ) -> dict[str, Any]:
-    """What a model card records about its training data and config (JSON-able)."""
+    """What a model card records about its training data, config and hardware (JSON-able)."""
     return {
+        "hardware": training_hardware(str(getattr(cfg, "device", "cpu"))),
         "data": str(cfg.data),
         "train_images": sorted({it.entry.image for it in train_items}),
         "val_images": sorted({it.entry.image for it in val_items}),

@@ -292,13 +292,13 @@ def make_prepare(cfg: TrainConfig, sources: Sequence[str]) -> Prepare:
     reference, and the exposure normalisation."""
 
     def prepare(buffers: Any, ref: Tensor) -> dict[str, Tensor]:
-        full_mode = cfg.prefilter if cfg.prefilter in ("all", "learned") else "off"
+        full_mode = cfg.prefilter if cfg.prefilter in ("all", "adaptive", "learned") else "off"
         t = prepare_tensors(buffers, "full", full_mode)
         if cfg.prefilter != "off" and "basic" in sources:
             # what the basic source gets at inference: no feature variances, so the albedo
             # and normal are prefiltered with a variance estimated from themselves (auto,
-            # all), or by the learned prefilter from what the file has (learned)
-            basic_mode = "learned" if cfg.prefilter == "learned" else "auto"
+            # all), or exactly as that inference mode does (adaptive, learned)
+            basic_mode = cfg.prefilter if cfg.prefilter in ("adaptive", "learned") else "auto"
             basic = prepare_tensors(buffers.subset(list(SOURCES["basic"])), "basic", basic_mode)
             t.update({f"{k}{BASIC_SUFFIX}": basic[k] for k in BASIC_PREFILTERED})
         t["reference"] = ref

@@ -16,8 +16,9 @@ from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.buffer_files import save_buffers_parts
 from mcdenoise.models.auxnet import FORMAT, AuxCard, AuxNet, apply_kernels, net_inputs
 from mcdenoise.models.weights import load_auxnet, model_method, shipped_model_path
+from mcdenoise.prep.aux_prefilter import mixing_mask, prefilter_aux
 from mcdenoise.prep.kpcn import prepare_tensors
-from mcdenoise.prep.learned_prefilter import learned_prefilter
+from mcdenoise.prep.learned_prefilter import learned_aux, learned_prefilter
 from mcdenoise.train.auxnet import build, train_auxnet
 from mcdenoise.train.config import load_config
 
@@ -52,30 +53,36 @@ def inputs(h: int = 40, w: int = 56, seed: int = 1) -> dict[str, torch.Tensor]:
         "albedo": torch.rand(1, 3, h, w, generator=g),
         "normal": torch.nn.functional.normalize(torch.randn(1, 3, h, w, generator=g), dim=1),
         "color": torch.rand(1, 3, h, w, generator=g) * 4,
+        "color_var": torch.rand(1, 1, h, w, generator=g) * 0.1,
     }
+
+
+def x_of(t: dict[str, torch.Tensor]) -> torch.Tensor:
+    noise = torch.full_like(t["color_var"], 0.1)
+    return net_inputs(t["albedo"], t["normal"], t["color"], noise, noise)
 
 
 def test_kernels_are_normalised_and_keep_values_in_range() -> None:
     net = random_net()
     t = inputs(32, 32)
-    w = net(net_inputs(t["albedo"], t["normal"], t["color"]))
-    assert w.shape == (1, 2 * 25, 32, 32)
-    assert torch.allclose(w.view(1, 2, 25, 32, 32).sum(2), torch.ones(1, 2, 32, 32), atol=1e-5)
+    w = net(x_of(t))
+    assert w.shape == (1, 2 * 49, 32, 32)
+    assert torch.allclose(w.view(1, 2, 49, 32, 32).sum(2), torch.ones(1, 2, 32, 32), atol=1e-5)
     out = net.filter(w, {"albedo": t["albedo"], "normal": t["normal"]})
-    # a convex combination of the 5x5 neighbourhood: never outside its min / max
+    # a convex combination of the 7x7 neighbourhood: never outside its min / max
     pool = torch.nn.functional.max_pool2d
-    hi = pool(torch.nn.functional.pad(t["albedo"], (2, 2, 2, 2), mode="replicate"), 5, 1)
-    lo = -pool(torch.nn.functional.pad(-t["albedo"], (2, 2, 2, 2), mode="replicate"), 5, 1)
+    hi = pool(torch.nn.functional.pad(t["albedo"], (3, 3, 3, 3), mode="replicate"), 7, 1)
+    lo = -pool(torch.nn.functional.pad(-t["albedo"], (3, 3, 3, 3), mode="replicate"), 7, 1)
     assert bool((out["albedo"] <= hi + 1e-6).all() and (out["albedo"] >= lo - 1e-6).all())
 
 
 def test_fresh_net_keeps_the_pixel_mostly() -> None:
     net = AuxNet(AuxCard()).eval()
     t = inputs()
-    x = net_inputs(t["albedo"], t["normal"], t["color"])
     with torch.no_grad():
-        w = net(x[..., :32, :48])
-    assert float(w[:, 12].min()) > 0.4  # the centre tap starts dominant
+        w = net(x_of(t)[..., :32, :48])
+    assert float(w[:, 24].min()) > 0.04  # the centre tap starts preferred, not saturated
+    assert float(w[:, 24].min()) > 2 * float(w[:, 23].max())
 
 
 def test_apply_kernels_identity_and_box() -> None:
@@ -94,8 +101,8 @@ def test_tiles_give_the_whole_image_result() -> None:
     net = random_net(widths=[8, 8, 8])
     t = inputs(100, 76)
     feats = {"albedo": t["albedo"], "normal": t["normal"]}
-    whole = learned_prefilter(feats, {}, t["color"], net, tile=512)
-    tiled = learned_prefilter(feats, {}, t["color"], net, tile=24)
+    whole = learned_prefilter(feats, {}, t["color"], t["color_var"], net, tile=512)
+    tiled = learned_prefilter(feats, {}, t["color"], t["color_var"], net, tile=24)
     for k in ("albedo", "normal"):
         assert whole[k].shape == feats[k].shape
         assert torch.allclose(whole[k], tiled[k], atol=1e-5), k
@@ -107,13 +114,13 @@ def test_variances_are_used_only_with_both() -> None:
     t = inputs(32, 32)
     feats = {"albedo": t["albedo"], "normal": t["normal"]}
     v = {"albedo": torch.full((1, 3, 32, 32), 0.05)}
-    no_var = learned_prefilter(feats, {}, t["color"], net)
-    one_var = learned_prefilter(feats, v, t["color"], net)
+    no_var = learned_prefilter(feats, {}, t["color"], t["color_var"], net)
+    one_var = learned_prefilter(feats, v, t["color"], t["color_var"], net)
     assert torch.equal(no_var["albedo"], one_var["albedo"])
     v["normal"] = torch.full((1, 3, 32, 32), 0.05)
-    both = learned_prefilter(feats, v, t["color"], net)
+    both = learned_prefilter(feats, v, t["color"], t["color_var"], net)
     assert not torch.equal(no_var["albedo"], both["albedo"])
-    assert learned_prefilter({"albedo": t["albedo"]}, {}, t["color"], net) == {}
+    assert learned_prefilter({"albedo": t["albedo"]}, {}, t["color"], t["color_var"], net) == {}
 
 
 def test_bad_values_do_not_leak() -> None:
@@ -121,7 +128,8 @@ def test_bad_values_do_not_leak() -> None:
     t = inputs(32, 32)
     t["color"][0, :, 3, 3] = float("inf")
     t["color"][0, :, 5, 5] = float("nan")
-    out = learned_prefilter({"albedo": t["albedo"], "normal": t["normal"]}, {}, t["color"], net)
+    feats = {"albedo": t["albedo"], "normal": t["normal"]}
+    out = learned_prefilter(feats, {}, t["color"], t["color_var"], net)
     assert all(bool(torch.isfinite(v).all()) for v in out.values())
 
 
@@ -132,7 +140,7 @@ def test_card_round_trip_and_refusals(tmp_path: Path) -> None:
     back = AuxNet.load(path)
     assert back.card.widths == [8, 12] and back.card.kernel == 3
     assert model_method(path) == "auxnet"
-    x = torch.rand(1, 13, 16, 16)
+    x = torch.rand(1, 15, 16, 16)
     assert torch.equal(back(x), net(x))
     with pytest.raises(InputError, match="kernel"):
         AuxCard.from_dict({"format": FORMAT, "widths": [8, 8], "kernel": 4})
@@ -142,18 +150,25 @@ def test_card_round_trip_and_refusals(tmp_path: Path) -> None:
 
 @pytest.mark.skipif(not shipped_model_path("auxnet").is_file(), reason="no shipped auxnet")
 def test_shipped_weights_clean_a_noisy_albedo() -> None:
-    """On the shipped depth-of-field sample at 4 spp the learned albedo is closer to the
-    16-spp one (a cleaner estimate of the same quantity) than the noisy albedo is."""
+    """On the shipped depth-of-field sample at 4 spp, in the pixels that mix surfaces, the
+    net's albedo is closer to the 16-spp one (a cleaner estimate of the same quantity) than
+    the noisy albedo is (measured: 0.49x); learned_aux takes it there and nowhere else."""
     net = load_auxnet(shipped_model_path("auxnet"))
-    assert net.card.training.get("steps", 0) > 0
+    assert net.card.training.get("hardware", {}).get("steps", 0) > 0
     b4 = load_buffers(SAMPLES / "dof_spp4.exr")
     b16 = load_buffers(SAMPLES / "dof_spp16.exr")
     feats = {k: b4[k][None] for k in ("albedo", "normal")}
-    out = learned_prefilter(feats, {}, b4["color"][None], net)
+    var = b4["color_var"].mean(0, keepdim=True)[None]
+    out = learned_prefilter(feats, {}, b4["color"][None], var, net)
+    mixing = mixing_mask(feats["normal"]).expand(-1, 3, -1, -1)
     target = b16["albedo"][None]
-    noisy_err = float((feats["albedo"] - target).square().mean())
-    learned_err = float((out["albedo"] - target).square().mean())
-    assert learned_err < 0.7 * noisy_err, (learned_err, noisy_err)
+    noisy_err = float((feats["albedo"] - target).square()[mixing].mean())
+    learned_err = float((out["albedo"] - target).square()[mixing].mean())
+    assert learned_err < 0.6 * noisy_err, (learned_err, noisy_err)
+    both = learned_aux(feats, {}, b4["color"][None], var, net)
+    adaptive = prefilter_aux(feats, {}, b4["color"][None], var)
+    assert torch.equal(both["albedo"][~mixing], adaptive["albedo"][~mixing])
+    assert torch.equal(both["albedo"][mixing], out["albedo"][mixing])
 
 
 @pytest.mark.skipif(not shipped_model_path("auxnet").is_file(), reason="no shipped auxnet")
@@ -169,6 +184,9 @@ def test_kpcn_prepares_learned_features() -> None:
     adaptive = prepare_tensors(b, "full", "adaptive")
     assert torch.equal(full["depth"], adaptive["depth"])  # depth / position as adaptive
     assert not torch.equal(full["albedo"], adaptive["albedo"])
+    # only the pixels that mix surfaces change
+    mixing = mixing_mask(b["normal"][None])[0].expand(3, -1, -1)
+    assert torch.equal(full["albedo"][~mixing], adaptive["albedo"][~mixing])
 
 
 def make_aux_dataset(folder: Path, size: int = 40) -> Path:

@@ -67,12 +67,16 @@ NOT_RECIPE = {"data", "threads"}
 def test_kpcn_defaults_are_the_recipe_of_the_shipped_weights() -> None:
     """``mcdenoise train --model kpcn`` with no other setting trains what the shipped weights'
     first stage trained (data/recipes/kpcn.md; the card records the resolved config of each
-    stage: the shipped model is its fine-tuning, ``base_training`` the model from scratch)."""
+    stage: the shipped model is the last fine-tuning, ``base_training`` the one it started
+    from, down to the model from scratch)."""
     import mcdenoise
 
     weights = Path(mcdenoise.__file__).parent / "models" / "weights" / "kpcn.pt"
     card = torch.load(weights, map_location="cpu", weights_only=True)["card"]
-    recipe = card["training"]["base_training"]["config"]
+    first = card["training"]
+    while "base_training" in first:  # the fine-tunings' chain back to the model from scratch
+        first = first["base_training"]
+    recipe = first["config"]
     cfg = load_config(None, {"model": "kpcn"}).to_dict()
     keys = sorted(set(recipe) - NOT_RECIPE)
     assert {k: cfg[k] for k in keys} == {k: recipe[k] for k in keys}
