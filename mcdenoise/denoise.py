@@ -679,7 +679,13 @@ def plan_jobs(
         from mcdenoise.models.weights import model_method
 
         # the model file says which method: one of the table, never a command
-        method = header_method(model_method(model), str(model), what="its model card").name
+        named = model_method(model)
+        if named == "auxnet":
+            raise InputError(
+                f"{model}: an auxiliary-buffer prefilter (auxnet), not a denoiser; kpcn uses "
+                "the shipped one with -p prefilter=learned"
+            )
+        method = header_method(named, str(model), what="its model card").name
     chosen = parse_methods(method)
     overrides = dict(params or {})
     if model is not None:

@@ -251,3 +251,16 @@ def test_cli_trains_auxnet_and_kpcn_accepts_the_mode(tmp_path: Path) -> None:
         ],
     )
     assert bad.exit_code != 0 and "learned" in bad.output
+
+
+def test_denoise_with_an_auxnet_file_says_what_it_is(tmp_path: Path) -> None:
+    model = tmp_path / "aux.pt"
+    random_net(widths=[8, 8]).save(model)
+    res = CliRunner().invoke(
+        main,
+        ["denoise", str(SAMPLES / "cornell_spp4.exr"), "--model", str(model), "-o",
+         str(tmp_path / "out.exr")],
+    )  # fmt: skip
+    assert res.exit_code == 1
+    assert "not a denoiser" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "out.exr").exists()
