@@ -4,7 +4,8 @@
 (:func:`~mcdenoise.prep.kpcn.source_for`), prepares the image once
 (:func:`~mcdenoise.prep.kpcn.prepare_tensors`) and runs the network tile by tile
 (:meth:`~mcdenoise.models.kpcn.KpcnModel.denoise_tensors`). The ``model`` parameter is a run
-folder or model file, default the shipped weights; the method ranks below the learned filters
+folder or model file, default the shipped weights (``kpcn-learned.pt`` with
+``-p prefilter=learned``, the weights trained on such inputs); the method ranks below the learned filters
 and above ``nlm`` when those weights are installed, else last. Its
 :attr:`~mcdenoise.method.Method.check_input` refuses, with the reason, an input none of whose
 sources the model was trained with has all the buffers of.
@@ -77,10 +78,19 @@ def denoise_kpcn(
     return out / k
 
 
+#: Shipped variant trained with ``prefilter=learned`` features (issue 34): with the shipped
+#: weights and ``-p prefilter=learned`` the method loads it, so the network sees the inputs
+#: it was trained on (``data/recipes/kpcn.md``).
+LEARNED_VARIANT = "learned"
+
+
 def _model(params: Mapping[str, Any]) -> KpcnModel:
     name = str(params["model"])
     if name in ("", SHIPPED):
         path = shipped_model_path("kpcn")
+        variant = shipped_model_path("kpcn", LEARNED_VARIANT)
+        if str(params.get("prefilter", "")) == "learned" and variant.is_file():
+            path = variant
         if not path.is_file():
             raise InputError("kpcn: no shipped weights in this install; pass -p model=RUN_FOLDER")
     else:

@@ -11,11 +11,12 @@ import torch
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
 
+from mcdenoise.denoise import denoise
 from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.buffer_files import save_buffers_parts
 from mcdenoise.models.auxnet import FORMAT, AuxCard, AuxNet, apply_kernels, net_inputs
-from mcdenoise.models.weights import load_auxnet, model_method, shipped_model_path
+from mcdenoise.models.weights import load_auxnet, load_kpcn, model_method, shipped_model_path
 from mcdenoise.prep.aux_prefilter import mixing_mask, prefilter_aux
 from mcdenoise.prep.kpcn import prepare_tensors
 from mcdenoise.prep.learned_prefilter import learned_aux, learned_prefilter
@@ -264,3 +265,23 @@ def test_denoise_with_an_auxnet_file_says_what_it_is(tmp_path: Path) -> None:
     assert res.exit_code == 1
     assert "not a denoiser" in res.output and "Traceback" not in res.output
     assert not (tmp_path / "out.exr").exists()
+
+
+@pytest.mark.skipif(not shipped_model_path("auxnet").is_file(), reason="no shipped auxnet")
+def test_prefilter_learned_runs_the_weights_trained_on_it() -> None:
+    """With the shipped weights, ``-p prefilter=learned`` loads ``kpcn-learned.pt`` (trained
+    on learned features); an explicit model is used as given."""
+    from mcdenoise.methods import kpcn as kpcn_method
+
+    b = load_buffers(SAMPLES / "dof_spp4.exr").subset(["color", "albedo", "normal"])
+    variant = shipped_model_path("kpcn", "learned")
+    assert variant.is_file()
+    m = kpcn_method._model({"model": "shipped", "prefilter": "learned"})
+    assert m is load_kpcn(variant)
+    assert kpcn_method._model({"model": "shipped", "prefilter": "adaptive"}) is load_kpcn(
+        shipped_model_path("kpcn")
+    )
+    given = kpcn_method._model({"model": str(shipped_model_path("kpcn")), "prefilter": "learned"})
+    assert given is load_kpcn(shipped_model_path("kpcn"))
+    out = denoise(b, "kpcn", params={"prefilter": "learned"}, device="cpu").image
+    assert out.shape == b["color"].shape and bool(torch.isfinite(out).all())

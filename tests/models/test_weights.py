@@ -115,6 +115,7 @@ def test_every_shipped_model_file_names_its_own_method() -> None:
         "kalantari-nlm": "kalantari-nlm",
         "kalantari-xbf-noalbedo": "kalantari-xbf",
         "kalantari-xbf": "kalantari-xbf",
+        "kpcn-learned": "kpcn",
         "kpcn-temporal": "kpcn-temporal",
         "kpcn": "kpcn",
         "nnao": "nnao",
