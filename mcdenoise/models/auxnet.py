@@ -49,7 +49,7 @@ from mcdenoise.modelfile import (
 )
 
 #: Model-file format tag of an auxnet card.
-FORMAT = "mcdenoise-auxnet-1"
+FORMAT = "mcdenoise.auxnet/1"
 #: Buffer kinds the net filters, in output order, and their channel counts.
 KINDS = {"albedo": 3, "normal": 3}
 #: Input channels of :func:`net_inputs`.
