@@ -285,3 +285,15 @@ def test_prefilter_learned_runs_the_weights_trained_on_it() -> None:
     assert given is load_kpcn(shipped_model_path("kpcn"))
     out = denoise(b, "kpcn", params={"prefilter": "learned"}, device="cpu").image
     assert out.shape == b["color"].shape and bool(torch.isfinite(out).all())
+
+
+@pytest.mark.skipif(not shipped_model_path("auxnet").is_file(), reason="no shipped auxnet")
+@pytest.mark.parametrize("size", [(1, 1), (3, 5), (9, 17)])
+def test_learned_prefilter_on_images_smaller_than_its_tiles(size: tuple[int, int]) -> None:
+    h, w = size
+    b = load_buffers(SAMPLES / "cornell_spp4.exr").subset(["color", "albedo", "normal"])
+    c = b.crop(0, 0, h, w)
+    c.data_window = c.display_window = (0, 0, w - 1, h - 1)
+    c.buffers["albedo"][0, 0, 0] = float("nan")  # sanitised before the net sees it
+    out = denoise(c, "kpcn", params={"prefilter": "learned"}, device="cpu").image
+    assert out.shape == (3, h, w) and bool(torch.isfinite(out).all())
