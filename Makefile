@@ -2,6 +2,8 @@
 #   make demo    install, then run the demo experiment (what accuracy costs in time: four
 #                scenes, 1-64 spp, every available method) -> demo-out/report.html
 #   make test    install, then run the test suite (slow and GPU tests are skipped)
+#   make test-fast  the fast tier (under 2 minutes on 2 cores): the suite less the tests marked
+#                heavy in tests/heavy_tests.txt; PKG=filters runs tests/filters only
 #   make wheel-check  the package as users install it: build the wheel, install it into a
 #                fresh venv outside the checkout, run `methods` and a denoise (.ci/wheel_check)
 # Everything installs into a local virtual environment (.venv); torch is pinned to the CPU
@@ -13,7 +15,7 @@ BIN    := $(VENV)/bin
 TORCH  ?= torch==2.13.0
 STAMP  := $(VENV)/.mcdenoise-installed
 
-.PHONY: install system-deps test test-all wheel-check lint format bench demo samples data clean
+.PHONY: install system-deps test test-fast test-all wheel-check lint format bench demo samples data clean
 
 install: $(STAMP)
 
@@ -36,6 +38,15 @@ system-deps:
 
 test: install
 	$(BIN)/python -m pytest -q
+
+# The tier to run while changing code (docs/development.md#tests): `make test` is the full
+# default suite (about 7.5 minutes on 2 cores); this one deselects the tests named in
+# tests/heavy_tests.txt (subprocesses, training runs, experiments end to end, naive reference
+# loops, every method on every sample, Mitsuba renders) and keeps every area's others.
+# PKG=io (a folder of tests/) runs that area only.
+PKG ?=
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not heavy" --durations=5 $(if $(PKG),tests/$(PKG))
 
 # Slow tests too (long renders, full-size memory checks).
 test-all: install

@@ -1,9 +1,10 @@
-"""Shared pytest configuration: markers for slow, GPU and Mitsuba tests."""
+"""Shared pytest configuration: markers for slow, GPU, Mitsuba and heavy tests."""
 
 from __future__ import annotations
 
 import importlib.util
 import os
+import warnings
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,7 @@ import torch
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data" / "samples"
+HEAVY_LIST = Path(__file__).with_name("heavy_tests.txt")
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -21,6 +23,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     run_slow = config.getoption("--run-slow") or os.environ.get("MCDENOISE_SLOW") == "1"
     has_cuda = torch.cuda.is_available()
     has_mitsuba = importlib.util.find_spec("mitsuba") is not None
+    _mark_heavy(items)
     for item in items:
         if "slow" in item.keywords and not run_slow:
             item.add_marker(pytest.mark.skip(reason="slow: use --run-slow or MCDENOISE_SLOW=1"))
@@ -29,6 +32,34 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if "mitsuba" in item.keywords and not has_mitsuba:
             item.add_marker(
                 pytest.mark.skip(reason="needs mitsuba (pip install 'mcdenoise[render]')")
+            )
+
+
+def _heavy_entries() -> list[str]:
+    lines = (line.split("#", 1)[0].strip() for line in HEAVY_LIST.read_text().splitlines())
+    return [line for line in lines if line]
+
+
+def _mark_heavy(items: list[pytest.Item]) -> None:
+    """Mark ``heavy`` every test named in ``tests/heavy_tests.txt`` (the one list of what the
+    fast tier, ``make test-fast`` = ``pytest -m "not heavy"``, leaves out). An entry is a
+    node-id prefix: a file, a test with all its parameters, or one parametrised case. An
+    entry whose file was collected but matches none of its tests is stale: warn."""
+    entries = _heavy_entries()
+    used: set[str] = set()
+    for item in items:
+        node = item.nodeid
+        for entry in entries:
+            if node == entry or node.startswith((entry + "::", entry + "[")):
+                item.add_marker(pytest.mark.heavy)
+                used.add(entry)
+                break
+    files = {item.nodeid.split("::", 1)[0] for item in items}
+    for entry in entries:
+        if entry not in used and entry.split("::", 1)[0] in files:
+            warnings.warn(
+                pytest.PytestWarning(f"{HEAVY_LIST.name}: {entry} matches no test"),
+                stacklevel=1,
             )
 
 
