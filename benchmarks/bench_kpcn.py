@@ -74,7 +74,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mcdenoise.denoise import denoise, get_method
+from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import MetricUnavailable, flip, flip_status, relmse, ssim
 from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.atomic import write_text_atomic
@@ -84,6 +84,7 @@ from mcdenoise.io.exr import write_exr
 from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.models.weights import load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import source_for
+from mcdenoise.registry import get_method
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.dataset import Entry, scan_dataset
 

@@ -32,10 +32,11 @@ from pathlib import Path
 
 import torch
 
-from mcdenoise.denoise import denoise, get_method
+from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
 from mcdenoise.io import load_buffers
 from mcdenoise.methods.nfor import denoise_nfor
+from mcdenoise.registry import get_method
 from mcdenoise.stats import geometric_mean
 from mcdenoise.train.dataset import scan_dataset
 

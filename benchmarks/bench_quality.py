@@ -20,9 +20,10 @@ from pathlib import Path
 
 import torch
 
-from mcdenoise.denoise import available_methods, denoise, get_method
+from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
 from mcdenoise.io import load_buffers
+from mcdenoise.registry import available_methods, get_method
 from mcdenoise.stats import geometric_mean
 
 REPO = Path(__file__).resolve().parents[1]

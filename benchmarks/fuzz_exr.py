@@ -489,6 +489,7 @@ def main() -> None:
             "mcdenoise_cli.main",
             "mcdenoise.io.info",
             "mcdenoise.denoise",
+            "mcdenoise.batch",
             "mcdenoise.registry",
         ):
             importlib.import_module(mod)

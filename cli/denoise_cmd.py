@@ -129,25 +129,27 @@ def denoise(
     Nothing is written when an output would replace one of the inputs (e.g. -o naming the
     input folder, which holds a.exr and a_nlm.exr): one line says which.
     """
-    from mcdenoise import denoise as dn
+    from mcdenoise.batch import OptionError, denoise_paths
+    from mcdenoise.denoise_files import ReadOptions, WriteOptions
+    from mcdenoise.method import params_from_strings
 
-    read = dn.ReadOptions(
+    read = ReadOptions(
         profile=profile, mapping=mapping, part=part, spp=spp, include_outputs=include_outputs
     )
-    write = dn.WriteOptions(half=half, compression=compression, estimate_error=estimate_error)
+    write = WriteOptions(half=half, compression=compression, estimate_error=estimate_error)
     try:
-        outcomes = dn.denoise_paths(
+        outcomes = denoise_paths(
             inputs,
             output,
             method,
-            params=dn.params_from_strings(params),
+            params=params_from_strings(params),
             model=model,
             device=device,
             read=read,
             write=write,
             progress=progress,
         )
-    except dn.OptionError as err:
+    except OptionError as err:
         raise click.UsageError(str(err)) from None
     for outcome in outcomes:  # results on stdout, "skipped ..." on stderr
         if verbose:
@@ -164,11 +166,11 @@ def denoise(
 @click.command("methods")
 def methods_cmd():
     """List the denoising methods, what they need, and whether they can run here."""
-    from mcdenoise import denoise as dn
+    from mcdenoise.registry import method_aliases, methods
 
     best = None
-    aliases = dn.method_aliases()
-    for m in dn.methods():
+    aliases = method_aliases()
+    for m in methods():
         reason = m.unavailable()
         if reason is None and best is None:
             best = m.name

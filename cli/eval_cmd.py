@@ -157,7 +157,7 @@ def eval_cmd(
     (e.g. I = $SLURM_ARRAY_TASK_ID), --merge then writes the one report. A spec that names
     external programs ([[external]], 'cmd:...') runs them only with --allow-commands.
     """
-    from mcdenoise.denoise import check_output_folder
+    from mcdenoise.denoise_files import check_output_folder
 
     check_output_folder(out_dir, "-o")
     mode = "auto" if progress is None else ("bar" if progress else "off")

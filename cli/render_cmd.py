@@ -135,7 +135,7 @@ def render(
     """
     from mcdenoise_cli.parsing import parse_res, parse_shard, parse_spp
 
-    from mcdenoise.denoise import check_output_folder
+    from mcdenoise.denoise_files import check_output_folder
     from mcdenoise.render.config import RenderConfig
     from mcdenoise.render.generate import render_dataset
 

@@ -116,7 +116,7 @@ def train(
     quiet,
 ):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
-    from mcdenoise.denoise import check_output_folder
+    from mcdenoise.denoise_files import check_output_folder
     from mcdenoise.method import params_from_strings
     from mcdenoise.train.trainers import train_model
 

@@ -1,8 +1,8 @@
 """The files of ``mcdenoise denoise``: which inputs, read how, which frames make a sequence,
 and where the outputs go.
 
-Below :mod:`mcdenoise.denoise` (which re-exports every name here): it reads headers and
-names, never runs a method.
+Below :mod:`mcdenoise.batch` and :mod:`mcdenoise.output`: it reads headers and names, never
+runs a method.
 
 Inputs
     :func:`collect_inputs` expands files and folders (``*.exr``, not recursive) into files;

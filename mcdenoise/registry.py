@@ -76,8 +76,10 @@ __all__ = [
     "header_method",
     "is_command",
     "is_plugin",
+    "method_aliases",
     "methods",
     "params_from_strings",
+    "parse_methods",
     "register",
 ]
 
@@ -368,3 +370,42 @@ def best_method(buffers: FeatureBuffers | None = None) -> Method:
         if m.name not in _PLUGINS:
             return m
     raise InputError("no denoising method is available here")
+
+
+def parse_methods(spec: str) -> list[Method]:
+    """``"auto"`` -> [best available]; ``"all"`` -> every available method; ``"a,b"`` -> those.
+
+    An external command (``cmd:PROGRAM ARGS``, :mod:`mcdenoise.methods.external`) runs to the
+    end of ``spec`` or to the next ``,cmd:``, so its own commas stay its own:
+    ``"nlm,cmd:den -s 1,2 {input} {output}"`` is nlm and one command.
+
+    >>> [m.name for m in parse_methods("nlm")]
+    ['nlm']
+    """
+    spec = spec.strip()
+    if spec == "auto":
+        return [best_method()]
+    if spec == "all":
+        return available_methods()
+    head, *commands = ("," + spec if spec.startswith("cmd:") else spec).split(",cmd:")
+    names = [s.strip() for s in head.split(",") if s.strip()]
+    names += ["cmd:" + c.strip() for c in commands]
+    if not names:
+        raise InputError("--method is empty")
+    chosen = [get_method(n) for n in names]
+    for m in chosen:
+        reason = m.unavailable()
+        if reason:
+            raise InputError(f"method {m.name!r} is not available: {reason}")
+    if len({m.name for m in chosen}) != len(chosen):
+        raise InputError(f"--method {spec!r} names a method twice")
+    return chosen
+
+
+def method_aliases() -> dict[str, list[str]]:
+    """Method name -> its aliases (``{"cross-bilateral": ["cross_bilateral", "xbf"]}``), for
+    ``mcdenoise methods`` and the ``--method`` help."""
+    table: dict[str, list[str]] = {}
+    for alias, name in aliases().items():
+        table.setdefault(name, []).append(alias)
+    return table

@@ -30,7 +30,7 @@ PACKAGE = REPO / "mcdenoise"
 #: Every unit a rule can name; each rule below lists what a unit must NOT import.
 _UNITS = {
     *("io", "filters", "prep", "models", "methods", "train", "eval", "experiments", "render"),
-    *("ao", "losses", "registry", "denoise", "modelfile"),
+    *("ao", "losses", "registry", "denoise", "batch", "output", "modelfile"),
 }
 
 FORBIDDEN: dict[str, set[str]] = {

@@ -23,7 +23,8 @@ from click.testing import CliRunner
 from mcdenoise_cli.main import main
 
 from mcdenoise import registry
-from mcdenoise.denoise import denoise, denoise_paths
+from mcdenoise.batch import denoise_paths
+from mcdenoise.denoise import denoise
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 from mcdenoise.io.buffers import MissingFeatureError

@@ -11,13 +11,8 @@ import pytest
 import torch
 
 from mcdenoise import registry
-from mcdenoise.denoise import (
-    OptionError,
-    denoise,
-    denoise_paths,
-    denoise_sequence,
-    plan_jobs,
-)
+from mcdenoise.batch import OptionError, denoise_paths, plan_jobs
+from mcdenoise.denoise import denoise, denoise_sequence
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, save_buffers
 from mcdenoise.io.buffers import MissingFeatureError

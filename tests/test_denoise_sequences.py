@@ -18,13 +18,12 @@ import pytest
 import torch
 
 from mcdenoise import registry
-from mcdenoise.denoise import (
+from mcdenoise.batch import denoise_paths, plan_jobs
+from mcdenoise.denoise_files import (
     ReadOptions,
     SequenceJob,
-    denoise_paths,
     frame_info,
     output_complete,
-    plan_jobs,
     scan_sequence,
 )
 from mcdenoise.errors import InputError
@@ -367,16 +366,16 @@ def test_an_interrupted_run_keeps_its_frames_and_a_rerun_writes_the_rest(
     assert done == [f"frame_{t:04d}_runmean.exr" for t in range(3)]  # written as finished
     stamps = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
 
-    import mcdenoise.denoise as dn
+    import mcdenoise.batch as batch
 
     written: list[str] = []
-    real = dn._write_result
+    real = batch.write_result
 
     def spy(src, dst, *a, **k):
         written.append(dst.name)
         return real(src, dst, *a, **k)
 
-    monkeypatch.setattr(dn, "_write_result", spy)
+    monkeypatch.setattr(batch, "write_result", spy)
     toy.interrupt_at, toy.seen = None, []
     outcomes = run([seq], out, "runmean")
     assert written == ["frame_0003_runmean.exr", "frame_0004_runmean.exr"]

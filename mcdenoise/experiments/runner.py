@@ -224,7 +224,8 @@ def run_unit(
         image = buffers["color"].numpy()
         name = str(level.file) if level.file is not None else f"{scene.noisy}#{level.part}"
     else:
-        from mcdenoise.denoise import denoise, get_method
+        from mcdenoise.denoise import denoise
+        from mcdenoise.registry import get_method
 
         method = get_method(entry.method)
         dev = run_device(method, device, record["notes"], entry.method)
@@ -338,8 +339,8 @@ def run_sequence_unit(
 
 
 def _write_output(unit: Unit, result: Any, median: float, buffers: Any, out: Path) -> None:
-    from mcdenoise.denoise import SCENE_ATTRIBUTES
     from mcdenoise.io import FeatureBuffers, save_buffers
+    from mcdenoise.output import SCENE_ATTRIBUTES
 
     path = unit.output_path(out)
     path.parent.mkdir(parents=True, exist_ok=True)

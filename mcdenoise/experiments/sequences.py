@@ -75,9 +75,10 @@ def run_sequence_unit(
         images = [f["color"].numpy() for f in frames]
         frame_seconds: list[float] = [0.0] * n
     else:
-        from mcdenoise.denoise import denoise_sequence, get_method
+        from mcdenoise.denoise import denoise_sequence
         from mcdenoise.experiments.entries import run_device
         from mcdenoise.experiments.timing import time_runs
+        from mcdenoise.registry import get_method
 
         method = get_method(entry.method)
         dev = run_device(method, device, record["notes"], entry.method)
@@ -134,8 +135,8 @@ def _write_frame(
     path: Path, unit: Any, result: Any, median: float, buffers: Any, index: int
 ) -> None:
     """One output frame with the attributes a still output has, plus its frame number."""
-    from mcdenoise.denoise import SCENE_ATTRIBUTES
     from mcdenoise.io import FeatureBuffers, save_buffers
+    from mcdenoise.output import SCENE_ATTRIBUTES
 
     path.parent.mkdir(parents=True, exist_ok=True)
     image = FeatureBuffers(

@@ -410,7 +410,7 @@ def _scene_files(ctx: _Ctx, key: str, value: Any) -> tuple[Path, ...]:
 
 
 def _method_name(ctx: _Ctx, key: str, value: Any) -> str:
-    from mcdenoise.denoise import get_method
+    from mcdenoise.registry import get_method
 
     name = _str(ctx, key, value)
     if name == NOISY:
@@ -425,8 +425,8 @@ def _method_name(ctx: _Ctx, key: str, value: Any) -> str:
 def _check_params(ctx: _Ctx, key: str, method: str, params: Mapping[str, Any]) -> None:
     import dataclasses
 
-    from mcdenoise.denoise import get_method
     from mcdenoise.methods.external import CommandParams
+    from mcdenoise.registry import get_method
 
     if method == NOISY:
         if params:

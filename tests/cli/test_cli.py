@@ -284,7 +284,7 @@ def test_interrupted_folder_run_leaves_only_complete_outputs(tmp_path):
 import sys, signal, os
 # a shell's background jobs start with SIGINT ignored; a terminal's Ctrl-C is what we mimic
 signal.signal(signal.SIGINT, signal.default_int_handler)
-import mcdenoise.denoise as dn
+import mcdenoise.output as dn
 real = dn.denoise
 count = [0]
 def slow(*a, **k):

@@ -137,11 +137,11 @@ signal.signal(signal.SIGINT, signal.default_int_handler)
 {TOY}
 from mcdenoise import registry
 from mcdenoise.method import Method
-import mcdenoise.denoise as dn
+import mcdenoise.batch as dn
 registry.register(Method("runmean", "t", ("color",), ("motion",), {{}}, None,
                          temporal=True, run_sequence=running_mean))
 STOP = "stop" in sys.argv
-real = dn._write_result
+real = dn.write_result
 written = []
 def spy(src, dst, *a, **k):
     res = real(src, dst, *a, **k)
@@ -150,7 +150,7 @@ def spy(src, dst, *a, **k):
     if len(written) == 2 and STOP:
         os.kill(os.getpid(), signal.SIGINT)
     return res
-dn._write_result = spy
+dn.write_result = spy
 from mcdenoise_cli.main import main
 sys.argv = sys.argv[:1]
 sys.exit(main(["denoise", {str(seq)!r}, "-o", {str(out)!r}, "-m", "runmean", "--no-progress"]))

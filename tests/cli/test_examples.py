@@ -189,7 +189,7 @@ def test_readme_demo_experiment_runs(work: Path) -> None:
 
 
 def test_methods_lists_aliases_and_method_help_mentions_them() -> None:
-    from mcdenoise.denoise import method_aliases
+    from mcdenoise.registry import method_aliases
 
     lines = invoke(["methods"]).stdout.splitlines()
     table = method_aliases()

@@ -245,7 +245,7 @@ def test_refusing_and_unavailable_methods_are_reported_not_fatal(tmp_path: Path,
 
 
 def test_all_methods_means_every_registered_one(tmp_path: Path, fake_methods):
-    from mcdenoise.denoise import methods
+    from mcdenoise.registry import methods
 
     fake_methods.add("zz-new", blend)
     fake_methods.add("zz-absent", unavailable=lambda: "not here")

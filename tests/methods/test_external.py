@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from mcdenoise_cli.main import main
 
 from mcdenoise import registry
-from mcdenoise.denoise import denoise, parse_methods
+from mcdenoise.denoise import denoise
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 from mcdenoise.io.exr import read_exr
@@ -27,6 +27,7 @@ from mcdenoise.methods.external import (
     read_pfm,
     write_pfm,
 )
+from mcdenoise.registry import parse_methods
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "tests" / "data" / "external_denoiser.py"

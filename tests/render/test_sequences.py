@@ -508,7 +508,7 @@ def test_sequence_files_load_with_motion_and_the_manifest_records_frames(
     assert sorted(p.name for p in (folder / "ref").glob("*.exr")) == [
         f"frame_000{f}.exr" for f in range(3)
     ]
-    from mcdenoise.denoise import collect_inputs
+    from mcdenoise.denoise_files import collect_inputs
 
     assert [p.name for p in collect_inputs([folder])] == [f"frame_000{f}.exr" for f in range(3)]
     cams = sq.frame_cameras(spec, 3)
@@ -567,7 +567,8 @@ def test_sequence_files_load_with_motion_and_the_manifest_records_frames(
     assert rec["render_seconds"] == pytest.approx(total, abs=1e-4)
     assert m["render_seconds"] == pytest.approx(total, abs=2e-3)
     # The folder is one sequence for a temporal method (ref/ is not read): svgf, frame by frame.
-    from mcdenoise.denoise import ReadOptions, denoise_paths
+    from mcdenoise.batch import denoise_paths
+    from mcdenoise.denoise_files import ReadOptions
 
     done = list(
         denoise_paths(

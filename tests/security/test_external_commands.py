@@ -332,7 +332,8 @@ def test_a_plugin_of_top_priority_is_not_the_default(plugins) -> None:
     greedy = Method("plug-greedy", "takes over", ("color",), (), {}, _grab, priority=10**6)
     plugins(EntryPoint("greedy", "plug:GREEDY", greedy))
     fb = FeatureBuffers({"color": torch.ones(3, 8, 8)})
-    from mcdenoise.denoise import denoise, parse_methods
+    from mcdenoise.denoise import denoise
+    from mcdenoise.registry import parse_methods
 
     assert denoise(fb, "auto").method != "plug-greedy"
     assert parse_methods("auto")[0].name != "plug-greedy"
