@@ -21,11 +21,16 @@ A card comes from a file that may come from anyone, so the models read its field
 and bound the size of the module it describes with :func:`check_model_size` before building
 it: ``hidden = [1e5, 1e5]`` asked for 40 GB, ``kernel = 100001`` for 1 TB.
 
+Every model shares the plumbing through two bases: its dataclass card derives from
+:class:`Card` (``to_dict``, the format check of ``from_dict``) and its module from
+:class:`CardModule` (``save``, ``load``); only the field reads of ``from_dict`` are the model's.
+
 This module sits below :mod:`mcdenoise.models` and :mod:`mcdenoise.train`, which both use it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -37,7 +42,7 @@ import warnings
 import zipfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, ClassVar, NoReturn, Self
 
 import torch
 
@@ -412,6 +417,75 @@ def load_weights(module: torch.nn.Module, state: dict[str, Any], path: Path) -> 
         raise InputError(f"{path}: weights do not match the model card ({detail})") from None
 
 
+class Card:
+    """Base of the dataclass model cards: the JSON round trip and the format check.
+
+    A subclass is a ``@dataclass`` whose last field is ``format: str = FORMAT`` (the model
+    family and layout version) and whose ``from_dict(d, what)`` reads every field through
+    :meth:`fields` (:class:`CardFields`: type and range) and bounds the module's size
+    (:func:`check_model_size`) before returning the card.
+    """
+
+    def plain(self) -> dict[str, Any]:
+        """The card's fields as a dict (nested dataclasses as dicts); a card adds derived
+        fields here."""
+        return dataclasses.asdict(self)  # type: ignore[call-overload]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The card as written to a model file: plain JSON types only (``weights_only``)."""
+        return json_card(self.plain())
+
+    @classmethod
+    def fields(cls, d: object, what: str) -> CardFields:
+        """The :class:`CardFields` of ``d``, a card read from ``what``, after checking that its
+        ``format`` is this card's (an InputError naming both otherwise)."""
+        expected = cls.__dataclass_fields__["format"].default  # type: ignore[attr-defined]
+        f = CardFields(d, what)
+        if f.get("format", None) != expected:
+            raise InputError(f"{what}: format {f.get('format', None)!r} is not {expected!r}")
+        return f
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], what: str = "model file") -> Self:
+        """The card of a model file, every field checked (each card defines it)."""
+        raise NotImplementedError
+
+
+class CardModule(torch.nn.Module):
+    """Base of the models with a card: ``save`` writes the model file, ``load`` reads one.
+
+    A subclass sets :attr:`card_class`, is built by ``cls(card)`` and keeps the card as
+    ``self.card``; a model whose construction needs more (a check naming the file) overrides
+    :meth:`from_card`.
+    """
+
+    card_class: ClassVar[type[Card]]
+    card: Any
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the model file atomically."""
+        save_model(self.card.to_dict(), self, path)
+
+    @classmethod
+    def from_card(cls, card: Any, path: Path) -> Self:
+        """The untrained module of ``card`` (read from ``path``)."""
+        return cls(card)  # type: ignore[call-arg]
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Self:
+        """Read a model file (or a run folder's ``model.pt``), in eval mode.
+
+        Raises:
+            CheckpointError: missing/truncated file. InputError: not a model of this kind, a
+            card field out of range, or weights that do not match the card.
+        """
+        p, state = read_model_file(path)
+        model = cls.from_card(cls.card_class.from_dict(state["card"], what=str(p)), p)
+        load_weights(model, state["state"], p)
+        model.eval()
+        return model
+
+
 __all__ = [
     "MAX_ITEMS",
     "MAX_KERNEL",
@@ -419,7 +493,9 @@ __all__ = [
     "MAX_PARAMETERS",
     "MAX_WIDTH",
     "RUN_MODEL",
+    "Card",
     "CardFields",
+    "CardModule",
     "CheckpointError",
     "check_model_size",
     "json_card",

@@ -11,6 +11,8 @@ functions alike (a deferred import is still a dependency). The rules:
   experiments, render, registry, denoise;
 * ``modelfile`` sits below models and train;
 * no ``mcdenoise`` module imports ``mcdenoise_cli``;
+* every model card is a ``modelfile.Card`` and its module a ``modelfile.CardModule``, and
+  no model module calls the model-file plumbing (save_model, read_model_file, load_weights);
 * no import cycle between subpackages (``mcdenoise.io``, ``mcdenoise.filters``, ...; top-level
   modules such as ``mcdenoise.losses`` count as units of their own).
 """
@@ -18,11 +20,15 @@ functions alike (a deferred import is still a dependency). The rules:
 from __future__ import annotations
 
 import ast
+import dataclasses
+import importlib
 import itertools
 from collections import defaultdict
 from pathlib import Path
 
 import pytest
+
+from mcdenoise.modelfile import Card, CardModule
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "mcdenoise"
@@ -161,3 +167,55 @@ def test_no_file_over_900_lines():
         if (n := len(p.read_text(encoding="utf-8").splitlines())) > 900
     }
     assert not long
+
+
+#: The plumbing of model files that only the card bases (modelfile.Card, CardModule) call.
+_MODEL_FILE_PLUMBING = {"save_model", "read_model_file", "load_weights"}
+
+
+def _model_modules() -> list[Path]:
+    return sorted(p for p in (PACKAGE / "models").glob("*.py") if p.name != "__init__.py")
+
+
+def test_every_model_card_uses_the_card_base():
+    """Every model's card derives from ``modelfile.Card`` and its module from
+    ``modelfile.CardModule`` (one ``to_dict``/format check/``save``/``load`` for all)."""
+    cards, modules, bad = set(), set(), []
+    for path in _model_modules():
+        mod = importlib.import_module(_module_name(path))
+        for obj in vars(mod).values():
+            if not isinstance(obj, type) or obj.__module__ != mod.__name__:
+                continue
+            is_card = dataclasses.is_dataclass(obj) and any(
+                f.name == "format" for f in dataclasses.fields(obj)
+            )
+            if is_card:
+                cards.add(obj)
+                if not issubclass(obj, Card):
+                    bad.append(f"{obj.__module__}.{obj.__name__} is a card, not a Card")
+            if isinstance(getattr(obj, "card_class", None), type) or "card" in getattr(
+                obj, "__annotations__", {}
+            ):
+                if not issubclass(obj, CardModule):
+                    bad.append(f"{obj.__module__}.{obj.__name__} has a card, not a CardModule")
+            if issubclass(obj, CardModule):
+                modules.add(obj.card_class)
+    assert len(cards) >= 5, cards  # kalantari, kpcn, temporal, nnao, auxnet
+    assert not bad, bad
+    assert cards <= modules, f"cards without a CardModule: {cards - modules}"
+
+
+def test_models_leave_model_file_plumbing_to_the_base():
+    """No model module calls save_model/read_model_file/load_weights itself."""
+    offenders = {}
+    for path in _model_modules():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        names = {
+            a.name
+            for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module == "mcdenoise.modelfile"
+            for a in node.names
+        }
+        if names & _MODEL_FILE_PLUMBING:
+            offenders[path.name] = sorted(names & _MODEL_FILE_PLUMBING)
+    assert not offenders, offenders

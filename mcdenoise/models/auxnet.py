@@ -26,9 +26,6 @@ torch and :mod:`mcdenoise.modelfile`.
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,11 +38,9 @@ from mcdenoise.errors import InputError
 from mcdenoise.modelfile import (
     MAX_KERNEL,
     MAX_WIDTH,
-    CardFields,
+    Card,
+    CardModule,
     check_model_size,
-    load_weights,
-    read_model_file,
-    save_model,
 )
 
 #: Model-file format tag of an auxnet card.
@@ -122,7 +117,7 @@ def apply_kernels(x: Tensor, weights: Tensor, k: int) -> Tensor:
 
 
 @dataclass
-class AuxCard:
+class AuxCard(Card):
     """What an auxnet model file records besides the weights.
 
     Attributes:
@@ -142,16 +137,11 @@ class AuxCard:
         if self.kernel < 1 or self.kernel % 2 == 0 or self.kernel > MAX_KERNEL:
             raise InputError(f"{what}: kernel must be odd, 1 to {MAX_KERNEL}, got {self.kernel}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
-
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> AuxCard:
         """The card of a model file: fields type- and range-checked, the network's size
         bounded (:mod:`mcdenoise.modelfile`) before anything is built."""
-        f = CardFields(d, what)
-        if f.get("format", None) != FORMAT:
-            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        f = AuxCard.fields(d, what)
         card = AuxCard(
             widths=f.integers("widths", 1, MAX_WIDTH),
             kernel=f.integer("kernel", 1, MAX_KERNEL, odd=True),
@@ -168,7 +158,7 @@ def _block(a: int, b: int) -> nn.Sequential:
     )
 
 
-class AuxNet(nn.Module):
+class AuxNet(CardModule):
     """U-Net at half resolution -> per-kind kernel logits at full resolution.
 
     The full-resolution input is folded into its 2×2 blocks (``pixel_unshuffle``: 4× the
@@ -181,6 +171,8 @@ class AuxNet(nn.Module):
     ``(B, len(KINDS) · k², H, W)``; :meth:`filter` applies them. ``H`` and ``W`` must be
     multiples of :attr:`multiple` (callers pad).
     """
+
+    card_class = AuxCard
 
     def __init__(self, card: AuxCard) -> None:
         super().__init__()
@@ -232,23 +224,6 @@ class AuxNet(nn.Module):
                     buffers[name].float(), weights[:, i * k2 : (i + 1) * k2], k
                 )
         return out
-
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the model file atomically."""
-        save_model(self.card.to_dict(), self, path)
-
-    @staticmethod
-    def load(path: str | os.PathLike[str]) -> AuxNet:
-        """Read a model file (or a run folder's ``model.pt``).
-
-        Raises:
-            CheckpointError: missing/truncated file. InputError: not an auxnet model.
-        """
-        p, state = read_model_file(path)
-        model = AuxNet(AuxCard.from_dict(state["card"], what=str(p)))
-        load_weights(model, state["state"], p)
-        model.eval()
-        return model
 
 
 __all__ = ["FORMAT", "IN_CHANNELS", "KINDS", "AuxCard", "AuxNet", "apply_kernels", "net_inputs"]

@@ -38,10 +38,9 @@ trained with is refused with a message naming it
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -60,11 +59,10 @@ from mcdenoise.filters.settings import (
 )
 from mcdenoise.modelfile import (
     MAX_WIDTH,
+    Card,
     CardFields,
+    CardModule,
     check_model_size,
-    load_weights,
-    read_model_file,
-    save_model,
 )
 from mcdenoise.models.features import FeatureStats, check_feature_names, feature_names
 
@@ -93,7 +91,7 @@ def output_names(kind: str, guides: Sequence[str], passes: int = 1) -> list[str]
 
 
 @dataclass
-class ModelCard:
+class ModelCard(Card):
     """Everything needed to rebuild and check a model (JSON-able).
 
     Attributes:
@@ -135,20 +133,18 @@ class ModelCard:
         }
         return cls(**values)
 
-    def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
+    def plain(self) -> dict[str, Any]:
+        d = super().plain()
         d["features"] = self.features.to_dict()
         d["outputs"] = self.outputs
-        return json.loads(json.dumps(d))  # plain JSON types only (weights_only loading)
+        return d
 
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> ModelCard:
         """The card of a model file: every field's type and range checked, and the size of
         the network it describes bounded (:mod:`mcdenoise.modelfile`), before anything is built.
         """
-        f = CardFields(d, what)
-        if f.get("format", None) != FORMAT:
-            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        f = ModelCard.fields(d, what)
         kind = f.text("kind", KINDS)
         card = ModelCard(
             kind=kind,
@@ -220,12 +216,23 @@ class KalantariNet(nn.Module):
         return self.bound * torch.tanh(raw / self.bound)
 
 
-class KalantariModel(nn.Module):
+class KalantariModel(CardModule):
     """Features -> MLP -> per-pixel bandwidths -> classical filter.
 
     Args:
         card: the model card (kind, guides, feature statistics, hidden sizes, settings).
     """
+
+    card_class = ModelCard
+
+    @classmethod
+    def from_card(cls, card: ModelCard, path: Path) -> KalantariModel:
+        """The model of ``card``; a feature set that differs from what this version computes
+        is an InputError naming ``path`` (the message names the difference)."""
+        try:
+            return cls(card)
+        except InputError as err:
+            raise InputError(f"{path}: {err}") from None
 
     def __init__(self, card: ModelCard) -> None:
         super().__init__()
@@ -358,29 +365,6 @@ class KalantariModel(nn.Module):
 
         out = self.filter(batch, self.banded_offsets(features, h, chunk_rows))
         return torch.nan_to_num(out[0], nan=0.0, posinf=0.0, neginf=0.0).float()
-
-    # --- files ---------------------------------------------------------------------------
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the model file atomically."""
-        save_model(self.card.to_dict(), self, path)
-
-    @staticmethod
-    def load(path: str | os.PathLike[str]) -> KalantariModel:
-        """Read a model file (or the ``model.pt`` of a run folder).
-
-        Raises:
-            CheckpointError: missing/truncated file. InputError: wrong format or a feature set
-            that differs from what this version computes (the message names the difference).
-        """
-        p, state = read_model_file(path)
-        card = ModelCard.from_dict(state["card"], what=str(p))
-        try:
-            model = KalantariModel(card)
-        except InputError as err:
-            raise InputError(f"{p}: {err}") from None
-        load_weights(model, state["state"], p)
-        model.eval()
-        return model
 
 
 def new_model(

@@ -40,9 +40,6 @@ Model file (``torch.save`` of a dict, read with ``weights_only=True``)::
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -56,11 +53,9 @@ from mcdenoise.filters.albedo import demodulate
 from mcdenoise.modelfile import (
     MAX_KERNEL,
     MAX_WIDTH,
-    CardFields,
+    Card,
+    CardModule,
     check_model_size,
-    load_weights,
-    read_model_file,
-    save_model,
 )
 from mcdenoise.models.encoders import (
     SOURCES,
@@ -86,7 +81,7 @@ STRIP = 128
 
 
 @dataclass
-class KpcnCard:
+class KpcnCard(Card):
     """Everything needed to rebuild and check a model (JSON-able).
 
     Attributes:
@@ -134,19 +129,17 @@ class KpcnCard:
         if problems:
             raise InputError(f"{what}: {'; '.join(problems)}")
 
-    def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
+    def plain(self) -> dict[str, Any]:
+        d = super().plain()
         d["stats"] = {k: v.to_dict() for k, v in self.stats.items()}
-        return json.loads(json.dumps(d))
+        return d
 
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> KpcnCard:
         """The card of a model file: every field's type and range checked, and the size of
         the model it describes bounded (:mod:`mcdenoise.modelfile`), before anything is built.
         """
-        f = CardFields(d, what)
-        if f.get("format", None) != FORMAT:
-            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        f = KpcnCard.fields(d, what)
         channels = f.integers("channels", 1, MAX_WIDTH, min_len=2, max_len=8)
         stats = f.sub("stats")
         card = KpcnCard(
@@ -184,13 +177,15 @@ def albedo_head(n_in: int, kernel: int) -> nn.Conv2d:
     return conv
 
 
-class KpcnModel(nn.Module):
+class KpcnModel(CardModule):
     """The network and its pre/post-processing; see the module docstring.
 
     ``forward(batch)`` is the training path on crops: ``batch`` holds prepared tensors
     ``(B, C, h, w)`` (``h``, ``w`` multiples of :attr:`multiple`) and ``source`` ``(B,)`` (an
     index into ``card.sources`` per crop); it returns the denoised colour ``(B, 3, h, w)``.
     """
+
+    card_class = KpcnCard
 
     def __init__(self, card: KpcnCard) -> None:
         super().__init__()
@@ -335,25 +330,6 @@ class KpcnModel(nn.Module):
         if ph or pw:
             t = {k: F.pad(v, (0, pw, 0, ph), mode="replicate") for k, v in t.items()}
         return self.run(t, source, strip)[..., :h, :w]
-
-    # --- files -----------------------------------------------------------------------------
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the model file atomically."""
-        save_model(self.card.to_dict(), self, path)
-
-    @staticmethod
-    def load(path: str | os.PathLike[str]) -> KpcnModel:
-        """Read a model file (or the ``model.pt`` of a run folder).
-
-        Raises:
-            CheckpointError: missing/truncated file. InputError: not a kpcn model, or one whose
-            input channels differ from what this version computes (the message names them).
-        """
-        p, state = read_model_file(path)
-        model = KpcnModel(KpcnCard.from_dict(state["card"], what=str(p)))
-        load_weights(model, state["state"], p)
-        model.eval()
-        return model
 
 
 def new_model(

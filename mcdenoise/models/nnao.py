@@ -41,11 +41,8 @@ This module imports torch only: the G-buffer inputs are built by ``mcdenoise.met
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-import json
 import math
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -56,11 +53,9 @@ from torch import Tensor, nn
 from mcdenoise.errors import InputError
 from mcdenoise.modelfile import (
     MAX_WIDTH,
-    CardFields,
+    Card,
+    CardModule,
     check_model_size,
-    load_weights,
-    read_model_file,
-    save_model,
 )
 
 FORMAT = "mcdenoise.nnao/1"
@@ -93,7 +88,7 @@ def sample_pattern(samples: int, radial_power: float = LEGACY_RADIAL_POWER) -> T
 
 
 @dataclass
-class NnaoCard:
+class NnaoCard(Card):
     """What a model file records besides the weights.
 
     Attributes:
@@ -116,16 +111,11 @@ class NnaoCard:
         if not (math.isfinite(self.radial_power) and self.radial_power > 0):
             raise InputError(f"{what}: bad radial_power {self.radial_power} (must be > 0)")
 
-    def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
-
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> NnaoCard:
         """The card of a model file: every field's type and range checked, and the size of
         the network bounded (:mod:`mcdenoise.modelfile`), before anything is built."""
-        f = CardFields(d, what)
-        if f.get("format", None) != FORMAT:
-            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        f = NnaoCard.fields(d, what)
         card = NnaoCard(
             samples=f.integer("samples", 1, MAX_SAMPLES),
             radial_power=f.number("radial_power", 0.01, 100.0, default=LEGACY_RADIAL_POWER),
@@ -137,8 +127,10 @@ class NnaoCard:
         return card
 
 
-class NnaoModel(nn.Module):
+class NnaoModel(CardModule):
     """The MLP: ``forward(x)`` maps inputs ``(..., C)`` to AO ``(...)`` in ``[0, 1]``."""
+
+    card_class = NnaoCard
 
     def __init__(self, card: NnaoCard) -> None:
         super().__init__()
@@ -159,23 +151,6 @@ class NnaoModel(nn.Module):
         # not-finite inputs (never produced by the input builder) must not leak NaN
         x = torch.nan_to_num(x, nan=0.0, posinf=OFFSET_CLAMP, neginf=-OFFSET_CLAMP)
         return torch.sigmoid(self.net(x)[..., 0])
-
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the model file atomically."""
-        save_model(self.card.to_dict(), self, path)
-
-    @staticmethod
-    def load(path: str | os.PathLike[str]) -> NnaoModel:
-        """Read a model file (or a run folder's ``model.pt``).
-
-        Raises:
-            CheckpointError: missing/truncated file. InputError: not an nnao model.
-        """
-        p, state = read_model_file(path)
-        model = NnaoModel(NnaoCard.from_dict(state["card"], what=str(p)))
-        load_weights(model, state["state"], p)
-        model.eval()
-        return model
 
 
 __all__ = [

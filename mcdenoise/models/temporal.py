@@ -43,10 +43,7 @@ mode, hidden, training}, "state": state_dict}``; the base's weights live under `
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import math
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -59,11 +56,9 @@ from mcdenoise.errors import InputError
 from mcdenoise.filters.albedo import demodulate
 from mcdenoise.modelfile import (
     MAX_WIDTH,
-    CardFields,
+    Card,
+    CardModule,
     check_model_size,
-    load_weights,
-    read_model_file,
-    save_model,
 )
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel
 from mcdenoise.models.multiscale import (
@@ -107,7 +102,7 @@ def window_offsets(window: int, mode: str) -> list[int]:
 
 
 @dataclass
-class TemporalCard:
+class TemporalCard(Card):
     """Everything needed to rebuild the temporal model (JSON-able).
 
     Attributes:
@@ -139,17 +134,12 @@ class TemporalCard:
     def offsets(self) -> list[int]:
         return window_offsets(self.window, self.mode)
 
-    def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
-
     @staticmethod
     def from_dict(d: Mapping[str, Any], what: str = "model file") -> TemporalCard:
         """The card of a model file: every field's type and range checked (the ``base`` card
         by :meth:`KpcnCard.from_dict`), and the size of the model it describes bounded
         (:mod:`mcdenoise.modelfile`), before anything is built."""
-        f = CardFields(d, what)
-        if f.get("format", None) != FORMAT:
-            raise InputError(f"{what}: format {f.get('format', None)!r} is not {FORMAT!r}")
+        f = TemporalCard.fields(d, what)
         card = TemporalCard(
             base=f.mapping("base"),
             window=f.integer("window", 1, MAX_WINDOW),
@@ -293,8 +283,10 @@ class TemporalMixer(nn.Module):
         return deltas, self.alpha(ctx)
 
 
-class TemporalKpcn(nn.Module):
+class TemporalKpcn(CardModule):
     """The temporal model; ``base`` is a :class:`KpcnModel` (the shared trunk and heads)."""
+
+    card_class = TemporalCard
 
     def __init__(self, card: TemporalCard) -> None:
         super().__init__()
@@ -472,19 +464,6 @@ class TemporalKpcn(nn.Module):
                 res = self.run(fr, mk, centre, source)[..., : b - a, : d - c]
                 out[..., y0:y1, x0:x1] = res[..., y0 - a : y1 - a, x0 - c : x1 - c]
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
-
-    # --- files -----------------------------------------------------------------------------
-    def save(self, path: str | os.PathLike[str]) -> None:
-        save_model(self.card.to_dict(), self, path)
-
-    @staticmethod
-    def load(path: str | os.PathLike[str]) -> TemporalKpcn:
-        """Read a model file (or a run folder's ``model.pt``); errors as :meth:`KpcnModel.load`."""
-        p, state = read_model_file(path)
-        model = TemporalKpcn(TemporalCard.from_dict(state["card"], what=str(p)))
-        load_weights(model, state["state"], p)
-        model.eval()
-        return model
 
 
 def from_single_frame(
