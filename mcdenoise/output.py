@@ -104,10 +104,21 @@ def write_result(
     read: ReadOptions,
     write: WriteOptions,
     estimate: Mapping[str, Any] | None = None,
+    *,
+    attributes: Mapping[str, Any] | None = None,
+    source_profile: bool = True,
 ) -> FileResult:
     """Write ``result`` (the output of ``src``, read into ``buffers`` with ``read``) to
     ``dst`` atomically, with the header attributes :func:`denoise_file` describes
-    (``estimate``: ``--estimate-error``'s fields, written as ``mcdenoise:<field>``)."""
+    (``estimate``: ``--estimate-error``'s fields, written as ``mcdenoise:<field>``).
+
+    The one writer of denoised outputs: ``mcdenoise denoise`` (:func:`denoise_file`,
+    :mod:`mcdenoise.batch`), the experiment runner's outputs and a sequence experiment's
+    frames (:mod:`mcdenoise.experiments`). ``attributes``: more header attributes, set last
+    (they override the ones above: an experiment's median seconds, its label, its level's
+    spp, a frame's number); ``source_profile=False`` leaves ``mcdenoise:source_profile``
+    out (experiment outputs do not record it).
+    """
     from mcdenoise.io import save_buffers
 
     out = FeatureBuffers(
@@ -123,7 +134,7 @@ def write_result(
             attrs[key] = buffers.attributes[key]
     if read.part is not None:
         attrs["mcdenoise:source_part"] = str(read.part)
-    if buffers.profile and ":" in buffers.profile:
+    if source_profile and buffers.profile and ":" in buffers.profile:
         # the profile names an image inside the file (a Cycles view layer: "cycles:Layer2"):
         # `mcdenoise eval` reads the source, and the reference, with it
         attrs["mcdenoise:source_profile"] = buffers.profile
@@ -131,6 +142,7 @@ def write_result(
         attrs["mcdenoise:spp"] = int(buffers.spp)
     for key, value in (estimate or {}).items():
         attrs[f"mcdenoise:{key}"] = value
+    attrs.update(attributes or {})
     report = save_buffers(
         dst, out, half=write.half, compression=write.compression, attributes=attrs
     )

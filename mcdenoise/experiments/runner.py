@@ -339,28 +339,28 @@ def run_sequence_unit(
 
 
 def _write_output(unit: Unit, result: Any, median: float, buffers: Any, out: Path) -> None:
-    from mcdenoise.io import FeatureBuffers, save_buffers
-    from mcdenoise.output import SCENE_ATTRIBUTES
+    """The unit's output (:func:`mcdenoise.output.write_result`), with the median seconds
+    of the timed runs, the method's label and the level's spp and part."""
+    from mcdenoise.denoise_files import ReadOptions, WriteOptions
+    from mcdenoise.output import write_result
 
     path = unit.output_path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
-    image = FeatureBuffers(
-        {"color": result.image},
-        spp=buffers.spp,
-        data_window=buffers.data_window,
-        display_window=buffers.display_window,
+    extra = {
+        "mcdenoise:seconds": float(median),  # the median of the timed runs
+        "mcdenoise:label": unit.entry.label,
+        "mcdenoise:spp": int(unit.level.spp),
+    }
+    write_result(
+        unit.level.file or unit.scene.noisy,
+        path,
+        buffers,
+        result,
+        ReadOptions(part=unit.level.part or None),
+        WriteOptions(),
+        attributes=extra,
+        source_profile=False,
     )
-    attrs: dict[str, Any] = result.attributes()
-    attrs["mcdenoise:seconds"] = float(median)  # the median of the timed runs
-    attrs["mcdenoise:label"] = unit.entry.label
-    attrs["mcdenoise:source"] = str((unit.level.file or unit.scene.noisy).resolve())
-    for key in SCENE_ATTRIBUTES:  # which scene this is: `mcdenoise eval` checks it
-        if key in buffers.attributes:
-            attrs[key] = buffers.attributes[key]
-    if unit.level.part:
-        attrs["mcdenoise:source_part"] = unit.level.part
-    attrs["mcdenoise:spp"] = int(unit.level.spp)
-    save_buffers(path, image, attributes=attrs)
 
 
 @dataclass

@@ -134,29 +134,29 @@ def run_sequence_unit(
 def _write_frame(
     path: Path, unit: Any, result: Any, median: float, buffers: Any, index: int
 ) -> None:
-    """One output frame with the attributes a still output has, plus its frame number."""
-    from mcdenoise.io import FeatureBuffers, save_buffers
-    from mcdenoise.output import SCENE_ATTRIBUTES
+    """One output frame with the attributes a still output has, plus its frame number
+    (:func:`mcdenoise.output.write_result`)."""
+    from mcdenoise.denoise_files import ReadOptions, WriteOptions
+    from mcdenoise.output import write_result
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    image = FeatureBuffers(
-        {"color": result.image},
-        spp=buffers.spp,
-        data_window=buffers.data_window,
-        display_window=buffers.display_window,
+    extra = {
+        "mcdenoise:seconds": float(result.seconds),  # this frame's own seconds
+        "mcdenoise:seconds_per_frame_median": float(median),
+        "mcdenoise:label": unit.entry.label,
+        "mcdenoise:spp": int(unit.level.spp),
+        "mcdenoise:frame": int(index),
+    }
+    write_result(
+        unit.scene.frames[index].noisy,
+        path,
+        buffers,
+        result,
+        ReadOptions(part=unit.level.part),
+        WriteOptions(),
+        attributes=extra,
+        source_profile=False,
     )
-    attrs: dict[str, Any] = result.attributes()
-    attrs["mcdenoise:seconds"] = float(result.seconds)  # this frame's own seconds
-    attrs["mcdenoise:seconds_per_frame_median"] = float(median)
-    attrs["mcdenoise:label"] = unit.entry.label
-    attrs["mcdenoise:source"] = str(unit.scene.frames[index].noisy.resolve())
-    for key in SCENE_ATTRIBUTES:
-        if key in buffers.attributes:
-            attrs[key] = buffers.attributes[key]
-    attrs["mcdenoise:source_part"] = unit.level.part
-    attrs["mcdenoise:spp"] = int(unit.level.spp)
-    attrs["mcdenoise:frame"] = int(index)
-    save_buffers(path, image, attributes=attrs)
 
 
 def outputs_present(record: Mapping[str, Any], out: Path) -> bool:
