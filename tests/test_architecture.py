@@ -13,6 +13,9 @@ functions alike (a deferred import is still a dependency). The rules:
 * no ``mcdenoise`` module imports ``mcdenoise_cli``;
 * every model card is a ``modelfile.Card`` and its module a ``modelfile.CardModule``, and
   no model module calls the model-file plumbing (save_model, read_model_file, load_weights);
+* no module of ``mcdenoise/methods/`` imports another one (shared names live in ``filters``
+  or ``prep``), except ``methods/__init__`` registering them and the pairs listed in
+  ``METHOD_CROSS_IMPORTS``;
 * no import cycle between subpackages (``mcdenoise.io``, ``mcdenoise.filters``, ...; top-level
   modules such as ``mcdenoise.losses`` count as units of their own).
 """
@@ -219,3 +222,42 @@ def test_models_leave_model_file_plumbing_to_the_base():
         if names & _MODEL_FILE_PLUMBING:
             offenders[path.name] = sorted(names & _MODEL_FILE_PLUMBING)
     assert not offenders, offenders
+
+
+#: The method modules that may import another module of ``mcdenoise/methods/``, each with why.
+METHOD_CROSS_IMPORTS: dict[tuple[str, str], str] = {
+    ("mcdenoise.methods.selection", "mcdenoise.methods.cross_bilateral"): (
+        "the selection runs the cross-bilateral method's whole pipeline (denoise_xbf) as candidates"
+    ),
+    ("mcdenoise.methods.kalantari", "mcdenoise.methods.selection"): (
+        "selection.py is the Kalantari methods' `-p select`, not a method of its own"
+    ),
+    ("mcdenoise.methods.nnao", "mcdenoise.methods.ao"): (
+        "the learned AO estimator shares the AO methods' camera and G-buffer checks and "
+        "their priority"
+    ),
+}
+
+
+def _method_cross_imports() -> set[tuple[str, str]]:
+    """(importer, imported) pairs of modules of ``mcdenoise/methods/``, its ``__init__`` aside."""
+    paths = sorted(p for p in (PACKAGE / "methods").glob("*.py") if p.name != "__init__.py")
+    names = {_module_name(p) for p in paths}
+    pairs = set()
+    for path in paths:
+        src = _module_name(path)
+        for target in _imports(path):
+            if target == "mcdenoise.methods":  # the package registers every method
+                pairs.add((src, target))
+            pairs.update((src, m) for m in names if m != src and (target + ".").startswith(m + "."))
+    return pairs
+
+
+def test_no_method_module_imports_another():
+    """A name two methods share belongs in ``filters`` or ``prep``, not in one of the methods."""
+    pairs = _method_cross_imports()
+    assert ("mcdenoise.methods.nnao", "mcdenoise.methods.ao") in pairs  # the checker sees them
+    unexpected = sorted(pairs - set(METHOD_CROSS_IMPORTS))
+    assert not unexpected, f"method modules importing other method modules: {unexpected}"
+    stale = sorted(set(METHOD_CROSS_IMPORTS) - pairs)
+    assert not stale, f"METHOD_CROSS_IMPORTS lists imports that are gone: {stale}"

@@ -2,7 +2,8 @@
 
 Texture detail then never has to survive the filter: the albedo (a noise-free or nearly
 noise-free buffer) carries it past. The classical filters, the Kalantari models and the kpcn
-network all demodulate with these two functions.
+network all demodulate with the first two; the fixed filters' methods remodulate with
+:func:`remodulate`.
 """
 
 from __future__ import annotations
@@ -40,4 +41,11 @@ def demodulated_variance(color_var: Tensor, factor: Tensor) -> Tensor:
     return color_var / factor.square().mean(dim=1, keepdim=True)
 
 
-__all__ = ["ALBEDO_EPS", "demodulate", "demodulated_variance"]
+def remodulate(out: Tensor, factor: Tensor | None) -> Tensor:
+    """``(3, H, W)`` of a filtered ``(1, 3, H, W)`` irradiance: times ``factor``, clamped at 0."""
+    if factor is not None:
+        out = out * factor
+    return out.clamp_min(0.0)[0]
+
+
+__all__ = ["ALBEDO_EPS", "demodulate", "demodulated_variance", "remodulate"]

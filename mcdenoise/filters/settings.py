@@ -24,6 +24,14 @@ from mcdenoise.errors import InputError
 
 #: Guide features a filter may use, in order; those absent from the input are skipped.
 GUIDE_FEATURES: tuple[str, ...] = ("albedo", "normal", "depth", "position")
+#: Their variance buffers (``albedo_var``, ...), which the methods that use them list.
+GUIDE_VARS: tuple[str, ...] = tuple(g + "_var" for g in GUIDE_FEATURES)
+#: ``variance_prior`` of the ``cross-bilateral`` method (``-p variance_prior``;
+#: :mod:`mcdenoise.prep.variance`, 2-8 spp): on the demo renders at 2 spp, after the firefly
+#: clamp, relMSE 0.132 -> 0.038 on ``caustics_glass``, 0.026 -> 0.015 on ``cornell``
+#: (``docs/results/bias.md``). XbfSettings keeps 0, the per-pixel estimate the learned
+#: ``kalantari-xbf`` was trained with.
+XBF_VARIANCE_PRIOR = 3.0
 
 
 @dataclass(frozen=True)
@@ -151,6 +159,8 @@ def filter_radius(s: XbfSettings | NlmSettings) -> int:
 
 __all__ = [
     "GUIDE_FEATURES",
+    "GUIDE_VARS",
+    "XBF_VARIANCE_PRIOR",
     "NlmSettings",
     "XbfSettings",
     "feature_bandwidths",

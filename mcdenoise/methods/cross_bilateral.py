@@ -17,27 +17,19 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError
+from mcdenoise.filters.albedo import remodulate
 from mcdenoise.filters.cross_bilateral import cross_bilateral
 from mcdenoise.filters.parallel import single_threaded_ops
-from mcdenoise.filters.settings import GUIDE_FEATURES, XbfSettings, with_overrides
+from mcdenoise.filters.settings import (
+    GUIDE_FEATURES,
+    GUIDE_VARS,
+    XBF_VARIANCE_PRIOR,
+    XbfSettings,
+    with_overrides,
+)
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method, dataclass_defaults
 from mcdenoise.prep.inputs import demodulate_inputs, guide_args, prepare_inputs
-
-GUIDE_VARS = tuple(g + "_var" for g in GUIDE_FEATURES)
-#: ``variance_prior`` of the ``cross-bilateral`` method (``-p variance_prior``;
-#: :mod:`mcdenoise.prep.variance`, 2-8 spp): on the demo renders at 2 spp, after the firefly
-#: clamp, relMSE 0.132 -> 0.038 on ``caustics_glass``, 0.026 -> 0.015 on ``cornell``
-#: (``docs/results/bias.md``). XbfSettings keeps 0, the per-pixel estimate the learned
-#: ``kalantari-xbf`` was trained with.
-VARIANCE_PRIOR = 3.0
-
-
-def remodulate(out: Tensor, factor: Tensor | None) -> Tensor:
-    """``(3, H, W)`` of a filtered ``(1, 3, H, W)`` irradiance: times ``factor``, clamped at 0."""
-    if factor is not None:
-        out = out * factor
-    return out.clamp_min(0.0)[0]
 
 
 def denoise_xbf(buffers: FeatureBuffers, **overrides: object) -> Tensor:
@@ -45,7 +37,8 @@ def denoise_xbf(buffers: FeatureBuffers, **overrides: object) -> Tensor:
 
     Keyword overrides replace fields of :class:`XbfSettings` (an unknown name is an
     :class:`~mcdenoise.errors.InputError`; as a library function its ``variance_prior`` is
-    XbfSettings' 0, the registered method passes :data:`VARIANCE_PRIOR`). Fireflies are clamped
+    XbfSettings' 0, the registered method passes
+    :data:`~mcdenoise.filters.settings.XBF_VARIANCE_PRIOR`). Fireflies are clamped
     first (``fireflies``, :mod:`mcdenoise.prep.fireflies`). Works with colour only (the
     variance is then estimated) and with any subset of the guide features.
 
@@ -100,11 +93,11 @@ METHOD = Method(
     summary="cross-bilateral filter with colour and feature terms (Kalantari 2015 form)",
     requires=("color",),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
-    defaults={**dataclass_defaults(XbfSettings), "variance_prior": VARIANCE_PRIOR},
+    defaults={**dataclass_defaults(XbfSettings), "variance_prior": XBF_VARIANCE_PRIOR},
     run=_run,
     priority=10,
 )
 #: Other names ``--method`` accepts for it.
 ALIASES = ("xbf", "cross_bilateral")
 
-__all__ = ["ALIASES", "GUIDE_VARS", "METHOD", "VARIANCE_PRIOR", "denoise_xbf", "remodulate"]
+__all__ = ["ALIASES", "METHOD", "denoise_xbf"]

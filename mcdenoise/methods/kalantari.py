@@ -46,10 +46,9 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.parallel import single_threaded_ops
-from mcdenoise.filters.settings import GUIDE_FEATURES
+from mcdenoise.filters.settings import GUIDE_FEATURES, GUIDE_VARS
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError, has_halves
 from mcdenoise.method import Method
-from mcdenoise.methods.cross_bilateral import GUIDE_VARS
 from mcdenoise.methods.selection import select_kalantari
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import (

@@ -31,10 +31,9 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError
-from mcdenoise.filters.settings import GUIDE_FEATURES
+from mcdenoise.filters.settings import GUIDE_FEATURES, GUIDE_VARS
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method
-from mcdenoise.methods.cross_bilateral import GUIDE_VARS
 from mcdenoise.models.encoders import SOURCES
 from mcdenoise.models.temporal import TILE, TemporalKpcn, window_offsets
 from mcdenoise.models.weights import SHIPPED, load_kpcn_temporal, shipped_model_path

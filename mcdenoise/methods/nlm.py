@@ -14,12 +14,12 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from mcdenoise.filters.albedo import remodulate
 from mcdenoise.filters.nlm import non_local_means
 from mcdenoise.filters.parallel import single_threaded_ops
-from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, with_overrides
+from mcdenoise.filters.settings import GUIDE_FEATURES, GUIDE_VARS, NlmSettings, with_overrides
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method, dataclass_defaults
-from mcdenoise.methods.cross_bilateral import GUIDE_VARS, remodulate
 from mcdenoise.prep.inputs import demodulate_inputs, guide_args, prepare_inputs
 
 #: κ of the variance pair ``min(κ v_i, v_j)`` the ``nlm`` method runs with (``-p var_cap``).

@@ -58,9 +58,9 @@ from torch import Tensor
 from mcdenoise.errors import InputError
 from mcdenoise.filters.box import box_mean
 from mcdenoise.filters.parallel import single_threaded_ops
+from mcdenoise.filters.settings import XBF_VARIANCE_PRIOR
 from mcdenoise.filters.two_buffer import cross_error
 from mcdenoise.io.buffers import FeatureBuffers, half_inputs, has_halves
-from mcdenoise.methods.cross_bilateral import VARIANCE_PRIOR as XBF_VARIANCE_PRIOR
 from mcdenoise.methods.cross_bilateral import denoise_xbf
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.prep.kalantari import item_features, prepare_for_model
