@@ -71,7 +71,7 @@ def net_inputs(
     Args:
         albedo, normal: ``(B, 3, H, W)`` noisy buffers as the renderer wrote them (sanitised).
         color: ``(B, 3, H, W)`` linear colour, already brought to the standard exposure
-            (:func:`mcdenoise.prep.learned_prefilter.standard_exposure`).
+            (:func:`mcdenoise.prep.inputs.exposure_scale`).
         color_noise: ``(B, 1, H, W)`` the colour's relative standard deviation of the mean
             (``sqrt(color_var) / (luminance + 0.01)``): how many samples the pixel has, as
             far as the net can tell on a file that does not say.

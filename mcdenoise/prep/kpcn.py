@@ -41,10 +41,8 @@ factor; an image inside the range is not touched.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 
-import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError
@@ -52,7 +50,13 @@ from mcdenoise.filters.settings import GUIDE_FEATURES
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
 from mcdenoise.models.encoders import FEATURE_VARS, SOURCES
 from mcdenoise.prep.aux_prefilter import prefilter_aux
-from mcdenoise.prep.inputs import PREFILTER_ESTIMATED, prepare_inputs, quantile_subsampled
+from mcdenoise.prep.inputs import (
+    EXPOSURE_QUANTILE,
+    EXPOSURE_RANGE,
+    PREFILTER_ESTIMATED,
+    exposure_scale,
+    prepare_inputs,
+)
 from mcdenoise.prep.learned_prefilter import learned_aux
 
 #: Tensors of a prepared image and their channel counts.
@@ -83,28 +87,6 @@ EXPOSURE_MODES = {
     "auto": "scale the input into EXPOSURE_RANGE (and the result back)",
     "off": "the colour as it is",
 }
-#: Where the 90th percentile of the colour's luminance (channel mean) is brought by
-#: :func:`exposure_scale`: about the 5th-95th percentile of the training renders' (0.07-1.6
-#: on the random scenes at 16 spp).
-EXPOSURE_RANGE = (0.2, 1.0)
-#: Quantile of the luminance that :func:`exposure_scale` measures.
-EXPOSURE_QUANTILE = 0.9
-
-
-def exposure_scale(
-    color: Tensor, lo: float = EXPOSURE_RANGE[0], hi: float = EXPOSURE_RANGE[1]
-) -> float:
-    """Factor that brings the :data:`EXPOSURE_QUANTILE` of ``color``'s luminance into
-    ``[lo, hi]`` (1 when it is inside, or when the image is black).
-
-    Args:
-        color: ``(C, H, W)`` or ``(1, C, H, W)`` sanitised linear colour.
-    """
-    lum = color.mean(dim=-3).flatten()
-    level = float(quantile_subsampled(lum, torch.tensor(EXPOSURE_QUANTILE)))
-    if not math.isfinite(level) or level <= 0:
-        return 1.0
-    return min(max(level, lo), hi) / level
 
 
 def scale_exposure(t: Mapping[str, Tensor], k: float) -> dict[str, Tensor]:

@@ -4,15 +4,15 @@
 ``models/weights/auxnet.pt`` unless a model is given) on an image's noisy albedo and normal,
 tile by tile so that a 4K image needs no more memory than a 1 MP one, and returns them
 filtered. :func:`learned_aux` is what ``kpcn -p prefilter=learned`` uses: the net's albedo and
-normal where the pixel mixes surfaces, the adaptive NLM elsewhere and for depth and position. The colour it sees is brought to the standard exposure first
-(:func:`mcdenoise.prep.kpcn.exposure_scale`'s range), as the trainer
+normal where the pixel mixes surfaces, the adaptive NLM elsewhere and for depth and position.
+The colour the net sees is brought to the standard exposure first
+(:func:`mcdenoise.prep.inputs.exposure_scale`, the one ``kpcn`` uses), as the trainer
 (:mod:`mcdenoise.train.auxnet`) showed it. How the weights were made:
 ``data/recipes/auxnet.md``; what it buys: ``docs/results/aux-prefilter.md``.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 import torch
@@ -22,7 +22,7 @@ from torch import Tensor
 from mcdenoise.errors import InputError
 from mcdenoise.models.auxnet import KINDS, AuxNet, net_inputs
 from mcdenoise.prep.aux_prefilter import mixing_mask, prefilter_aux
-from mcdenoise.prep.inputs import estimate_feature_variance, quantile_subsampled
+from mcdenoise.prep.inputs import estimate_feature_variance, exposure_scale
 
 #: Tile edge (pixels of output) and context on each side: the U-Net's receptive field is
 #: about 2 · (2 + 4 + 8) + the kernel radius, so 32 pixels of context give every output
@@ -30,19 +30,6 @@ from mcdenoise.prep.inputs import estimate_feature_variance, quantile_subsampled
 #: multiples of the net's pooling factor, so its average pools see the same blocks.
 TILE = 512
 CONTEXT = 32
-#: Where the 90th percentile of the colour's luminance is brought before the net sees it
-#: (about the training renders' range; the same as ``prep.kpcn.EXPOSURE_RANGE``).
-EXPOSURE_RANGE = (0.2, 1.0)
-
-
-def standard_exposure(color: Tensor) -> float:
-    """Factor bringing the 90th percentile of ``color``'s luminance into
-    :data:`EXPOSURE_RANGE` (1 for a black or non-finite image)."""
-    lum = color.mean(dim=-3).flatten()
-    level = float(quantile_subsampled(lum, torch.tensor(0.9)))
-    if not math.isfinite(level) or level <= 0:
-        return 1.0
-    return min(max(level, EXPOSURE_RANGE[0]), EXPOSURE_RANGE[1]) / level
 
 
 def shipped_auxnet() -> AuxNet:
@@ -84,7 +71,7 @@ def prefilter_inputs(
         av, nv = av.to(albedo), nv.to(albedo)
     col = color.to(albedo)
     cn, an = noise_channels(albedo, col, color_var.to(albedo))
-    return net_inputs(albedo, normal, col * standard_exposure(col), cn, an, av, nv)
+    return net_inputs(albedo, normal, col * exposure_scale(col), cn, an, av, nv)
 
 
 @torch.no_grad()
@@ -170,10 +157,8 @@ def learned_aux(
 
 __all__ = [
     "CONTEXT",
-    "EXPOSURE_RANGE",
     "TILE",
     "learned_aux",
     "learned_prefilter",
     "shipped_auxnet",
-    "standard_exposure",
 ]

@@ -39,8 +39,8 @@ from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.losses import relmse
 from mcdenoise.models.auxnet import AuxCard, AuxNet, net_inputs
-from mcdenoise.prep.inputs import prepare_inputs
-from mcdenoise.prep.learned_prefilter import noise_channels, standard_exposure
+from mcdenoise.prep.inputs import exposure_scale, prepare_inputs
+from mcdenoise.prep.learned_prefilter import noise_channels
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.dataset import (
     REFERENCE,
@@ -90,7 +90,7 @@ def prepare(buffers: FeatureBuffers, reference: FeatureBuffers) -> dict[str, Ten
         "albedo_var": av[0].mean(0, keepdim=True) if has else _zeros(a),
         "normal_var": nv[0].mean(0, keepdim=True) if has else _zeros(a),
         "has_var": torch.full_like(a[:1], 1.0 if has else 0.0),
-        "color": inp.color[0] * standard_exposure(inp.color),
+        "color": inp.color[0] * exposure_scale(inp.color),
         REFERENCE: ref.features["albedo"][0],
         "ref_normal": ref.features["normal"][0],
     }
