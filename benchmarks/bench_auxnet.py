@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_ood
 
 from mcdenoise.io import load_buffers
+from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.models.weights import load_auxnet, shipped_model_path
 from mcdenoise.prep.aux_prefilter import prefilter_aux
@@ -146,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"seconds per megapixel ({args.threads} threads): " + ", ".join(
             f"{k} {v:.2f}" for k, v in s.items()))  # fmt: skip
     if args.json:
-        args.json.write_text(json.dumps(result, indent=1))
+        write_text_atomic(args.json, json.dumps(result, indent=1))
     return 0
 
 
