@@ -52,8 +52,8 @@ from mcdenoise.methods.ao import METHODS
 from mcdenoise.methods.nnao import METHOD as NNAO
 from mcdenoise.methods.nnao import load_nnao, nnao
 from mcdenoise.models.weights import SHIPPED
+from mcdenoise.render.scene_spec import Camera
 from mcdenoise.render.scenes import camera_metadata
-from mcdenoise.render.spec import Camera
 
 
 def _camera_from_manifest(record: dict) -> str:

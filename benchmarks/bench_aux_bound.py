@@ -63,10 +63,10 @@ import torch
 from mcdenoise.denoise import denoise
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import relmse, ssim
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.stats import geometric_mean
 
 BASELINE = bench_ood.BASELINE
 SHIPPED = "kpcn"  # bench_ood's row of the shipped kpcn

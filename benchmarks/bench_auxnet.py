@@ -37,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_ood
 
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.io.buffers import FeatureBuffers
@@ -44,7 +45,6 @@ from mcdenoise.models.weights import load_auxnet, shipped_model_path
 from mcdenoise.prep.aux_prefilter import prefilter_aux
 from mcdenoise.prep.inputs import prepare_inputs
 from mcdenoise.prep.learned_prefilter import learned_aux, learned_prefilter
-from mcdenoise.stats import geometric_mean
 
 MODES = ("off", "adaptive", "net", "learned")
 EPS = 0.01

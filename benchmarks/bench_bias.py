@@ -31,11 +31,11 @@ import torch
 
 from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import channel_bias, mean_bias, relmse
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.io.exr import probe_exr
 from mcdenoise.method import params_from_strings
 from mcdenoise.registry import available_methods, get_method
-from mcdenoise.stats import geometric_mean
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -62,8 +62,8 @@ def render_cost(args: argparse.Namespace) -> int:
     from mcdenoise.render.config import RenderConfig
     from mcdenoise.render.jobs import jobs_from_specs
     from mcdenoise.render.passes import render_image
+    from mcdenoise.render.scene_spec import load_spec
     from mcdenoise.render.scenes import ensure_variant
-    from mcdenoise.render.spec import load_spec
     from mcdenoise.threads import set_render_threads
 
     variant = ensure_variant(args.variant)

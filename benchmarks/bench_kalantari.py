@@ -36,13 +36,13 @@ import torch
 
 from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.models.kalantari import settings_class
 from mcdenoise.prep.kalantari import prepare_item
 from mcdenoise.registry import get_method
-from mcdenoise.stats import geometric_mean
-from mcdenoise.train.dataset import load_items, scan_dataset, split_images
 from mcdenoise.train.grid import GridResult, grid_search
+from mcdenoise.train.patches import load_items, scan_dataset, split_images
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

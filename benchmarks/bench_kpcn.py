@@ -76,6 +76,7 @@ import torch
 
 from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import MetricUnavailable, flip, flip_status, relmse, ssim
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.io.buffer_files import read_buffers
@@ -85,8 +86,7 @@ from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.models.weights import load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import source_for
 from mcdenoise.registry import get_method
-from mcdenoise.stats import geometric_mean
-from mcdenoise.train.dataset import Entry, scan_dataset
+from mcdenoise.train.patches import Entry, scan_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 HELDOUT = REPO / "data" / "generated" / "heldout"

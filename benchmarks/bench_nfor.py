@@ -34,11 +34,11 @@ import torch
 
 from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.methods.nfor import denoise_nfor
 from mcdenoise.registry import get_method
-from mcdenoise.stats import geometric_mean
-from mcdenoise.train.dataset import scan_dataset
+from mcdenoise.train.patches import scan_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 PEERS = ("oidn", "kpcn", "kalantari-xbf")

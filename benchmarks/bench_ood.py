@@ -57,10 +57,10 @@ import torch
 from mcdenoise.denoise import denoise
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import MetricUnavailable, flip, flip_status, mean_bias, relmse, ssim
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.losses import RELMSE_EPS
-from mcdenoise.stats import geometric_mean
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "data" / "generated" / "ood"

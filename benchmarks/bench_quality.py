@@ -22,9 +22,9 @@ import torch
 
 from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.registry import available_methods, get_method
-from mcdenoise.stats import geometric_mean
 
 REPO = Path(__file__).resolve().parents[1]
 

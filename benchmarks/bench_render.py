@@ -24,8 +24,8 @@ from typing import Any
 
 from mcdenoise.render.effects import plan_effects
 from mcdenoise.render.moments import moment_integrator, render_moments
+from mcdenoise.render.scene_spec import load_spec
 from mcdenoise.render.scenes import ensure_variant, scene_dict, variant_works
-from mcdenoise.render.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SPEC = ROOT / "data" / "scenes" / "cornell.toml"

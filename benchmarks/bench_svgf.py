@@ -38,7 +38,7 @@ import torch
 from mcdenoise.denoise import denoise_sequence
 from mcdenoise.eval import temporal_relmse
 from mcdenoise.eval.metrics import relmse
-from mcdenoise.eval.temporal import tpsnr
+from mcdenoise.eval.temporal_metrics import tpsnr
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.registry import get_method

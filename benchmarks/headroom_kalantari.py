@@ -61,6 +61,7 @@ from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse
 from mcdenoise.filters.box import box_mean
 from mcdenoise.filters.two_buffer import cross_error
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import has_halves
 from mcdenoise.losses import relative_squared_error, relmse_map
@@ -76,9 +77,8 @@ from mcdenoise.methods.selection import (
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.weights import SHIPPED, shipped_model_path
 from mcdenoise.prep.kalantari import prepare_for_model
-from mcdenoise.stats import geometric_mean
-from mcdenoise.train.dataset import scan_dataset
 from mcdenoise.train.grid import GridResult
+from mcdenoise.train.patches import scan_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 GRIDS = [REPO / "benchmarks" / "results" / f"kalantari_grid_{k}.json" for k in ("xbf", "xbf2")]

@@ -41,7 +41,7 @@ from mcdenoise.denoise import denoise
 from mcdenoise.eval.metrics import relmse, ssim
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.train.dataset import scan_dataset
+from mcdenoise.train.patches import scan_dataset
 
 KEYS = ("model", "prefilter", "exposure", "source", "clean", "scale", "normals")
 NORMALS = {"zxy": lambda n: n[[2, 0, 1]], "neg": lambda n: -n}

@@ -88,8 +88,8 @@ def render_plain(folder: Path, out: Path, threads: int) -> list[Path]:
 
     from mcdenoise.render.effects import plan_effects
     from mcdenoise.render.integrators import register_integrators
+    from mcdenoise.render.scene_spec import parse_spec
     from mcdenoise.render.scenes import ensure_variant, load_scene, scene_dict
-    from mcdenoise.render.spec import parse_spec
 
     manifest = json.loads((folder / "manifest.json").read_text())
     # the variant that rendered the canonical images (the same estimator as the reference)

@@ -11,7 +11,7 @@ from mcdenoise_cli.options import threads_option
 def metrics_help() -> str:
     """The ``--metrics`` help, from the registered metrics (:data:`mcdenoise.eval.metrics.METRICS`)."""
     from mcdenoise.eval.metrics import METRICS, PARTS
-    from mcdenoise.eval.temporal import TEMPORAL_METRICS
+    from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS
 
     names = ",".join(n for n, m in METRICS.items() if m.part_of is None)
     parts = "".join(f"; {k} also gives {','.join(v)}" for k, v in PARTS.items())
@@ -195,7 +195,7 @@ def eval_cmd(
         return
 
     from mcdenoise.eval import evaluate, write_report
-    from mcdenoise.eval.temporal import WARMUP_FRAMES
+    from mcdenoise.eval.temporal_metrics import WARMUP_FRAMES
 
     result = evaluate(
         reference,

@@ -106,7 +106,7 @@ def _one_thread_modules(request: pytest.FixtureRequest):
 def interrupted_training(monkeypatch: pytest.MonkeyPatch):
     """``run(train_fn, cfg, out, at)``: ``train_fn(cfg, out)`` with a Ctrl-C raised when the
     patch sampler draws its ``at``-th batch (a kill in the middle of step ``at``)."""
-    from mcdenoise.train.dataset import PatchSampler
+    from mcdenoise.train.patches import PatchSampler
 
     def run(train_fn, cfg, out, at: int) -> None:
         real_batch = PatchSampler.batch

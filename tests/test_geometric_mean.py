@@ -1,4 +1,4 @@
-"""Tests of ``mcdenoise/stats.py`` (named apart from tests/experiments/test_stats.py): the one
+"""Tests of ``mcdenoise/geomean.py`` (named apart from tests/experiments/test_stats.py): the one
 geometric mean, its values, and each ``invalid`` policy on empty, zero, negative, NaN/None and
 infinite inputs."""
 
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from mcdenoise.stats import geometric_mean
+from mcdenoise.geomean import geometric_mean
 
 NAN, INF = math.nan, math.inf
 

@@ -30,7 +30,7 @@ import random
 from pathlib import Path
 
 from mcdenoise.render.random_scenes import random_specs
-from mcdenoise.render.spec_types import Animation, SceneSpec
+from mcdenoise.render.scene_spec_types import Animation, SceneSpec
 
 
 def _size(o) -> float:
@@ -85,7 +85,7 @@ CURATED: dict[str, tuple[Animation, dict[int, tuple[float, float, float]]]] = {
 
 
 def curated(scenes_dir: Path, out: Path) -> None:
-    from mcdenoise.render.spec import load_spec
+    from mcdenoise.render.scene_spec import load_spec
 
     for name, (anim, moves) in CURATED.items():
         spec = load_spec(scenes_dir / f"{name}.toml")

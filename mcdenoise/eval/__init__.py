@@ -12,15 +12,21 @@ temporal metrics and the warm-up frames apart::
     result = evaluate("data/gen/seq_0/ref", ["out_nlm/", "out_svgf/"], warmup=2)
 
 Modules: :mod:`~mcdenoise.eval.metrics` (relMSE, SMAPE, MSE, PSNR, SSIM, FLIP and their
-registry), :mod:`~mcdenoise.eval.temporal` (temporal relMSE, Noisebase's tPSNR and tRMAE,
+registry), :mod:`~mcdenoise.eval.temporal_metrics` (temporal relMSE, Noisebase's tPSNR and tRMAE,
 per-frame metrics of a sequence), :mod:`~mcdenoise.eval.tonemap` (sRGB, exposure, false colour),
 :mod:`~mcdenoise.eval.preview` (crop choice), :mod:`~mcdenoise.eval.results` (records and
 their JSON form), :mod:`~mcdenoise.eval.run` (the entry points), :mod:`~mcdenoise.eval.evaluate`
-(files and arrays -> records), :mod:`~mcdenoise.eval.sequences` (folders of frames ->
-records), :mod:`~mcdenoise.eval.report` (records -> files).
+(files and arrays -> records), :mod:`~mcdenoise.eval.evaluate_sequences` (folders of frames ->
+records), :mod:`~mcdenoise.eval.eval_report` (records -> files).
 """
 
+from mcdenoise.eval.eval_report import write_report
 from mcdenoise.eval.evaluate import evaluate_arrays, evaluate_files, match_prefix
+from mcdenoise.eval.evaluate_sequences import (
+    evaluate_sequence_arrays,
+    evaluate_sequences,
+    sequence_frames,
+)
 from mcdenoise.eval.metrics import (
     METRICS,
     Metric,
@@ -35,7 +41,6 @@ from mcdenoise.eval.metrics import (
     smape,
     ssim,
 )
-from mcdenoise.eval.report import write_report
 from mcdenoise.eval.results import (
     EvalRecord,
     EvalResult,
@@ -44,12 +49,7 @@ from mcdenoise.eval.results import (
     SequenceDetail,
 )
 from mcdenoise.eval.run import evaluate, run_eval
-from mcdenoise.eval.sequences import (
-    evaluate_sequence_arrays,
-    evaluate_sequences,
-    sequence_frames,
-)
-from mcdenoise.eval.temporal import (
+from mcdenoise.eval.temporal_metrics import (
     TEMPORAL_METRICS,
     WARMUP_FRAMES,
     SequenceEvaluator,

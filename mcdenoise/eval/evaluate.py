@@ -10,9 +10,9 @@ Two entry points share one engine:
 
 Sequences: when ``reference`` is a folder of frames ``frame_0000.exr``, ``frame_0001.exr``, ...
 (the layout of ``mcdenoise render --frames``: ``DIR/<id>/ref/``), :func:`evaluate` hands over
-to :func:`~mcdenoise.eval.sequences.evaluate_sequences` (:mod:`mcdenoise.eval.sequences`): every output is a folder of frames (``mcdenoise denoise
+to :func:`~mcdenoise.eval.evaluate_sequences.evaluate_sequences` (:mod:`mcdenoise.eval.evaluate_sequences`): every output is a folder of frames (``mcdenoise denoise
 SEQ_DIR -o OUT``), matched to the reference frames by name, and evaluated as one sequence
-with per-frame and temporal metrics (:mod:`mcdenoise.eval.temporal`), the warm-up frames
+with per-frame and temporal metrics (:mod:`mcdenoise.eval.temporal_metrics`), the warm-up frames
 reported apart.
 
 For every output the noisy input it was made from is found from its ``mcdenoise:source``
@@ -49,7 +49,7 @@ from mcdenoise.eval.results import (
     EvalResult,
     ScenePreview,
 )
-from mcdenoise.eval.temporal import (
+from mcdenoise.eval.temporal_metrics import (
     is_temporal,
 )
 from mcdenoise.eval.tonemap import auto_exposure
@@ -698,7 +698,7 @@ def evaluate_files(
     """Evaluate denoised EXR files (and their noisy inputs) against reference EXR(s): stills.
 
     :func:`mcdenoise.eval.run.evaluate` (``mcdenoise.eval.evaluate``) calls this for stills
-    and :func:`mcdenoise.eval.sequences.evaluate_sequences` for a reference folder of frames.
+    and :func:`mcdenoise.eval.evaluate_sequences.evaluate_sequences` for a reference folder of frames.
 
     An output whose recorded source (``mcdenoise:source``) records another scene than its
     reference does (see :func:`same_scene`) is refused, naming both; with ``force`` it is

@@ -28,7 +28,7 @@ The ε of relMSE and SMAPE are the training losses' (:data:`mcdenoise.losses.REL
 :data:`mcdenoise.losses.SMAPE_EPS`), imported from there. :func:`relative_squared_error` is the
 relMSE normalisation ``(·) / (r² + ε)`` every numpy relMSE of the package goes through; the
 torch one is :func:`mcdenoise.losses.relative_squared_error`. Errors are averaged over images
-with :func:`mcdenoise.stats.geometric_mean`.
+with :func:`mcdenoise.geomean.geometric_mean`.
 
 Edge cases, by policy:
 
@@ -428,7 +428,7 @@ class Metric:
 
 def describe_metric(m: Any) -> dict[str, Any]:
     """The JSON-ready description of a metric (:class:`Metric`, or a temporal one of
-    :mod:`mcdenoise.eval.temporal`): label, definition, ε, colour space, direction."""
+    :mod:`mcdenoise.eval.temporal_metrics`): label, definition, ε, colour space, direction."""
     return {
         "label": m.label,
         "definition": m.definition,

@@ -6,7 +6,7 @@ output and each noisy input, grouped by ``scene``), not a fixed table, so later 
 
 A sequence (a folder of frames, see :func:`mcdenoise.eval.run.evaluate`) is one record per
 method too: its ``metrics`` are the headline values of
-:class:`mcdenoise.eval.temporal.SequenceValues` (frames past the warm-up), and its ``sequence``
+:class:`mcdenoise.eval.temporal_metrics.SequenceValues` (frames past the warm-up), and its ``sequence``
 (:class:`SequenceDetail`) holds the warm-up values, the values over all frames and one
 :class:`FrameRecord` per frame.
 
@@ -80,7 +80,7 @@ class FrameRecord:
 
 @dataclass
 class SequenceDetail:
-    """What an evaluated sequence adds to its record (see :mod:`mcdenoise.eval.temporal`).
+    """What an evaluated sequence adds to its record (see :mod:`mcdenoise.eval.temporal_metrics`).
 
     Attributes:
         warmup: number of first frames reported apart.
@@ -266,7 +266,7 @@ class EvalResult:
     def format_table(self) -> str:
         """A plain-text summary table (one line per record) for terminals and logs; for
         sequences the values past the warm-up (see :meth:`format_frames`)."""
-        from mcdenoise.eval.temporal import metric_spec
+        from mcdenoise.eval.temporal_metrics import metric_spec
 
         # the parts of a summary metric (bias R, G, B) stay in the JSON and CSV
         shown = [
@@ -307,7 +307,7 @@ class EvalResult:
         """Per-frame values of every sequence: one line per frame, per record the columns
         ``metrics`` (those evaluated); warm-up frames are marked ``*``. Empty without
         sequences."""
-        from mcdenoise.eval.temporal import metric_spec
+        from mcdenoise.eval.temporal_metrics import metric_spec
 
         keys = [m for m in metrics if m in self.metrics]
         blocks = []
@@ -335,7 +335,7 @@ class EvalResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe dict: schema, version, metric definitions, references and records
         (and, for sequences, how the warm-up is reported)."""
-        from mcdenoise.eval.temporal import metric_spec
+        from mcdenoise.eval.temporal_metrics import metric_spec
 
         extra = {}
         if self.warmup is not None and self.has_sequences:

@@ -3,7 +3,7 @@
 
 Stills are :func:`mcdenoise.eval.evaluate.evaluate_files`; a reference folder of frames
 (``frame_0000.exr``, ...) makes every output a sequence,
-:func:`mcdenoise.eval.sequences.evaluate_sequences`. Both share the file matching and header
+:func:`mcdenoise.eval.evaluate_sequences.evaluate_sequences`. Both share the file matching and header
 checks of :mod:`mcdenoise.eval.evaluate`.
 """
 
@@ -13,9 +13,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from mcdenoise.eval.evaluate import PathLike, evaluate_files
+from mcdenoise.eval.evaluate_sequences import evaluate_sequences, sequence_frames
 from mcdenoise.eval.results import EvalResult
-from mcdenoise.eval.sequences import evaluate_sequences, sequence_frames
-from mcdenoise.eval.temporal import WARMUP_FRAMES
+from mcdenoise.eval.temporal_metrics import WARMUP_FRAMES
 
 
 def evaluate(
@@ -33,7 +33,7 @@ def evaluate(
 
     A reference folder of frames (``frame_0000.exr``, ...) is a sequence: every output is a
     folder of frames and the evaluation is
-    :func:`~mcdenoise.eval.sequences.evaluate_sequences` (per-frame and temporal metrics;
+    :func:`~mcdenoise.eval.evaluate_sequences.evaluate_sequences` (per-frame and temporal metrics;
     ``warmup`` is used there only). Anything else is stills:
     :func:`~mcdenoise.eval.evaluate.evaluate_files`, whose docstring gives the matching of
     outputs to references, the scene check (``force``, ``warn``) and the errors raised.
@@ -72,12 +72,12 @@ def run_eval(
     warn: Callable[[str], None] | None = None,
     warmup: int = WARMUP_FRAMES,
 ) -> tuple[EvalResult, dict[str, Path]]:
-    """:func:`evaluate` then :func:`~mcdenoise.eval.report.write_report` into ``out_dir``.
+    """:func:`evaluate` then :func:`~mcdenoise.eval.eval_report.write_report` into ``out_dir``.
 
     Returns:
         The result and the written paths (``json``, ``csv``, ``html``, ``images``).
     """
-    from mcdenoise.eval.report import write_report
+    from mcdenoise.eval.eval_report import write_report
 
     result = evaluate(
         reference,

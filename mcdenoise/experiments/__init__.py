@@ -17,7 +17,7 @@ statistics over scenes. Modules, one concern each:
 * :mod:`~mcdenoise.experiments.analysis`: records -> findings;
 * :mod:`~mcdenoise.experiments.provenance`: versions, git commit, data hash;
 * :mod:`~mcdenoise.experiments.plots`, :mod:`~mcdenoise.experiments.report`: the output;
-* :mod:`~mcdenoise.experiments.sequences`, :mod:`~mcdenoise.experiments.temporal_report`:
+* :mod:`~mcdenoise.experiments.sequence_units`, :mod:`~mcdenoise.experiments.temporal_report`:
   sequences (``[render] frames = N``): one unit per (sequence, spp, method), times per frame,
   per-frame and temporal metrics; the temporal table and plots, x–t slices, animated strips.
 

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.eval.results import decode_float, jsonable
-from mcdenoise.eval.temporal import metric_spec
+from mcdenoise.eval.temporal_metrics import metric_spec
 from mcdenoise.experiments.dataset import Level, SceneData
 from mcdenoise.experiments.entries import MethodEntry
 from mcdenoise.experiments.quality import (
@@ -58,7 +58,7 @@ from mcdenoise.experiments.tradeoff import (
     log_budgets,
     pareto_front,
 )
-from mcdenoise.stats import geometric_mean
+from mcdenoise.geomean import geometric_mean
 
 #: Version of the results.json layout of experiments; bump when fields change meaning.
 SCHEMA = "mcdenoise.experiment/1"
@@ -376,8 +376,8 @@ class ExperimentResult:
 
     def temporal_dict(self) -> dict[str, Any]:
         """The over-sequences table of per-frame and temporal errors against time per frame
-        (:func:`mcdenoise.experiments.sequences.temporal_rows`)."""
-        from mcdenoise.experiments.sequences import TEMPORAL_OVERALL, temporal_rows
+        (:func:`mcdenoise.experiments.sequence_units.temporal_rows`)."""
+        from mcdenoise.experiments.sequence_units import TEMPORAL_OVERALL, temporal_rows
 
         return {
             "warmup_frames": self.spec.warmup_frames,
@@ -464,7 +464,7 @@ SEQUENCE_DEFINITIONS = {
         "the warm-up (the first warmup_frames frames, reported apart as 'warm-up')"
     ),
     "temporal metrics": (
-        "temporal relMSE, tPSNR and tRMAE of mcdenoise.eval.temporal (frame differences of "
+        "temporal relMSE, tPSNR and tRMAE of mcdenoise.eval.temporal_metrics (frame differences of "
         "the output against the reference's), averaged over the frame pairs past the warm-up"
     ),
 }

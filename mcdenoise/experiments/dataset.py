@@ -78,10 +78,10 @@ def render_jobs(spec: ExperimentSpec) -> list[Any]:
 def _scene_spec(spec: ExperimentSpec, path: Path) -> Any:
     """The scene spec at ``path``, with the experiment's ``[scenes.animate.<name>]`` merged
     into its TOML (``animation`` replaces its ``[animation]``, each ``move`` sets
-    ``objects[i].motion``) and validated by :func:`mcdenoise.render.spec.parse_spec`."""
+    ``objects[i].motion``) and validated by :func:`mcdenoise.render.scene_spec.parse_spec`."""
     import tomllib
 
-    from mcdenoise.render.spec import SpecError, load_spec, parse_spec
+    from mcdenoise.render.scene_spec import SpecError, load_spec, parse_spec
 
     scene = load_spec(path)
     extra = spec.animate.get(scene.name)

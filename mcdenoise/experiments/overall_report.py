@@ -28,7 +28,7 @@ from mcdenoise.experiments.htmlkit import sub as _sub
 from mcdenoise.experiments.htmlkit import table as _table
 from mcdenoise.experiments.spec import NOISY
 from mcdenoise.experiments.stats import BETTER, IS_BASELINE, WORSE
-from mcdenoise.stats import geometric_mean
+from mcdenoise.geomean import geometric_mean
 
 
 def plot_series(

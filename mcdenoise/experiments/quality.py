@@ -38,8 +38,8 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.eval.metrics import relative_squared_error
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.losses import RELMSE_EPS
-from mcdenoise.stats import geometric_mean
 
 #: Errors below this multiple of the reference's noise floor are "limited by the reference".
 FLOOR_FACTOR = 2.0

@@ -8,7 +8,7 @@ section per scene (its curves, tables and an image strip: noisy input, every met
 reference through the same crop and tonemap, each with its per-pixel relMSE map), and ends
 with the definitions and the provenance (versions, git commit, machine, data hash, seeds).
 
-Like :mod:`mcdenoise.eval.report` the page needs no network and no JavaScript: inline CSS,
+Like :mod:`mcdenoise.eval.eval_report` the page needs no network and no JavaScript: inline CSS,
 PNGs in ``images/`` referenced by relative paths. Every file is written atomically; PNGs of
 an earlier report that the new page does not show are removed.
 """
@@ -31,11 +31,11 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import McdenoiseError
+from mcdenoise.eval.eval_report import error_scale, write_png
 from mcdenoise.eval.metrics import relmse_map
 from mcdenoise.eval.preview import choose_crop, crop
-from mcdenoise.eval.report import error_scale, write_png
 from mcdenoise.eval.results import encode_float
-from mcdenoise.eval.temporal import metric_spec
+from mcdenoise.eval.temporal_metrics import metric_spec
 from mcdenoise.eval.tonemap import auto_exposure, colorbar, display, false_color
 from mcdenoise.experiments.analysis import (
     ExperimentResult,
@@ -419,7 +419,7 @@ def _metric(name: str, value: Any) -> str:
     """A metric value for a table: signed ones (mean bias) in percent."""
     v = number(value)
     if v is not None and math.isfinite(v) and metric_spec(name).signed:
-        from mcdenoise.eval.report import percent
+        from mcdenoise.eval.eval_report import percent
 
         return percent(v)
     return _g(value, 4)

@@ -25,7 +25,7 @@ finished one is only re-assembled. Delete ``DIR/work`` to time everything again.
 
 Sequences (``[render] frames = N``): a unit is one (sequence, spp level, method), run over
 the whole sequence with the times per frame and the per-frame and temporal metrics of
-:mod:`mcdenoise.eval.temporal` (:mod:`~mcdenoise.experiments.sequences`); its outputs are a
+:mod:`mcdenoise.eval.temporal_metrics` (:mod:`~mcdenoise.experiments.sequence_units`); its outputs are a
 folder of frames, ``DIR/outputs/<scene>_spp<n>_<label>/``. Resume works the same way.
 
 A method that refuses an input (a :class:`~mcdenoise.errors.McdenoiseError`, e.g. a buffer it
@@ -320,8 +320,8 @@ def run_sequence_unit(
     settings: RunSettings,
     device: Any,
 ) -> dict[str, Any]:
-    """:func:`run_unit` for a sequence (:func:`mcdenoise.experiments.sequences.run_sequence_unit`)."""
-    from mcdenoise.experiments.sequences import run_sequence_unit as run
+    """:func:`run_unit` for a sequence (:func:`mcdenoise.experiments.sequence_units.run_sequence_unit`)."""
+    from mcdenoise.experiments.sequence_units import run_sequence_unit as run
 
     record = run(
         unit,
@@ -503,7 +503,7 @@ def _load_reference(scene: SceneData) -> Any:
 def _load_level(scene: SceneData, level: Level) -> Any:
     """The level as ``FeatureBuffers``, or for a sequence the list of its frames'."""
     if scene.is_sequence:
-        from mcdenoise.experiments.sequences import load_frames
+        from mcdenoise.experiments.sequence_units import load_frames
 
         return load_frames([f.noisy for f in scene.frames], level.part)
     return read_level(scene.noisy, level)
@@ -514,7 +514,7 @@ def _output_present(record: Mapping[str, Any], out: Path) -> bool:
     if not output:
         return True
     if record.get("output_frames"):
-        from mcdenoise.experiments.sequences import outputs_present
+        from mcdenoise.experiments.sequence_units import outputs_present
 
         return outputs_present(record, out)
     p = Path(output)
@@ -611,7 +611,7 @@ def _run_locked(
     was taken over)."""
     from mcdenoise.denoise import resolve_device
     from mcdenoise.eval.metrics import resolve_metrics
-    from mcdenoise.eval.temporal import resolve_sequence_metrics
+    from mcdenoise.eval.temporal_metrics import resolve_sequence_metrics
     from mcdenoise.experiments.dataset import folder_frames
     from mcdenoise.progress import progress_bar
 

@@ -77,7 +77,7 @@ nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
     outputs = "all"                       # keep the denoised EXR of every level ("all") or of
                                           # the strip level only ("strip")
     warmup_frames = 2                     # sequences: first frames reported apart (history
-                                          # warm-up, :mod:`mcdenoise.eval.temporal`)
+                                          # warm-up, :mod:`mcdenoise.eval.temporal_metrics`)
 
 With ``[scenes] folder``, the ladder, size and reference come from that folder's manifest;
 ``[render]`` may then only give ``spp``, a subset of the folder's levels.
@@ -86,11 +86,11 @@ training layout) is read by :mod:`mcdenoise.experiments.folder_data`: the levels
 file names (or parts ``spp<n>``), the render seconds are unknown.
 
 Sequences (``frames = N``, or a folder rendered with ``--frames``): every scene is a sequence
-of ``N`` frames (:mod:`mcdenoise.render.sequences`; camera path and moving objects from the
+of ``N`` frames (:mod:`mcdenoise.render.animation`; camera path and moving objects from the
 scene spec's ``[animation]`` and ``objects[i].motion``, or from ``[scenes.animate.<name>]``).
 Each (sequence, spp, method) is one unit: the method runs over the whole sequence (a temporal
 method through its ``run_sequence``, a per-frame one frame by frame), times are per frame, and
-the metrics are those of :func:`mcdenoise.eval.temporal.sequence_metrics`: the per-frame
+the metrics are those of :func:`mcdenoise.eval.temporal_metrics.sequence_metrics`: the per-frame
 metrics averaged past the warm-up, the temporal ones (``trelmse``, ``tpsnr``, ``trmae``) and
 the warm-up frames apart. ``metrics`` may then name temporal metrics and must include
 ``relmse`` and ``trelmse``; its default is every still and temporal metric.
@@ -390,7 +390,7 @@ def _spp_ladder(ctx: _Ctx, key: str, value: Any) -> tuple[int, ...]:
 
 
 def _scene_files(ctx: _Ctx, key: str, value: Any) -> tuple[Path, ...]:
-    from mcdenoise.render.spec import SpecError, collect_specs
+    from mcdenoise.render.scene_spec import SpecError, collect_specs
 
     files: list[Path] = []
     for i, item in enumerate(_list(ctx, key, value)):
@@ -654,7 +654,7 @@ def parse_experiment(
                 raise ctx.error(f"report.budgets[{j}]", f"must be seconds > 0, got {b!r}")
         budgets = tuple(sorted(float(b) for b in raw_b))
     outputs = _str(ctx, "report.outputs", report.get("outputs", "all"))
-    from mcdenoise.eval.temporal import WARMUP_FRAMES
+    from mcdenoise.eval.temporal_metrics import WARMUP_FRAMES
 
     warmup_frames = _int(
         ctx, "report.warmup_frames", report.get("warmup_frames", WARMUP_FRAMES), lo=0
@@ -746,7 +746,7 @@ def _metric_names(ctx: _Ctx, raw: Sequence[str], frames: int | None) -> tuple[st
     """The spec's metrics: still ones (parts added), and temporal ones for sequences; relMSE
     (and for sequences temporal relMSE) required, since the curves and tables use them."""
     from mcdenoise.eval.metrics import resolve_metrics
-    from mcdenoise.eval.temporal import is_temporal, resolve_sequence_metrics
+    from mcdenoise.eval.temporal_metrics import is_temporal, resolve_sequence_metrics
 
     try:
         if frames is None:
@@ -785,7 +785,7 @@ def _animate(
         return {}
     if frames is None:
         raise ctx.error("scenes.animate", "only for sequences: set [render] frames = N")
-    from mcdenoise.render.spec import SpecError, load_spec
+    from mcdenoise.render.scene_spec import SpecError, load_spec
 
     names: dict[str, Any] = {}
     for p in specs:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from mcdenoise.stats import geometric_mean
+from mcdenoise.geomean import geometric_mean
 
 #: Verdicts of :class:`RatioStats`.
 BETTER = "better"

@@ -29,7 +29,7 @@ import numpy as np
 
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.experiments.htmlkit import esc, g, img, sec, slug, sub, table
-from mcdenoise.experiments.sequences import TEMPORAL_OVERALL, frame_name, temporal_rows
+from mcdenoise.experiments.sequence_units import TEMPORAL_OVERALL, frame_name, temporal_rows
 from mcdenoise.experiments.spec import NOISY
 from mcdenoise.io.atomic import atomic_path
 
@@ -199,7 +199,7 @@ def _frames_of(result: Any, scene: Any, label: str, spp: int, out: Path) -> list
 
 def scene_images(result: Any, scene: Any, index: int, out: Path) -> str:
     """x–t slices and the animated strip of one sequence at the strip level (module doc)."""
-    from mcdenoise.eval.report import write_png
+    from mcdenoise.eval.eval_report import write_png
     from mcdenoise.eval.tonemap import auto_exposure, display, to_uint8
     from mcdenoise.io import load_buffers
 

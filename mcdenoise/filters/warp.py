@@ -24,7 +24,7 @@ weight (Falcor: ``sumw >= 0.01``) is invalid: value 0, mask 0.
 Everything is plain vectorised torch (``gather`` on the flattened image), on the CPU or
 CUDA, and differentiable with respect to the image (and, through the bilinear weights,
 to the motion away from integer positions). The temporal methods (``svgf``, the temporal
-KPCN) use it; :func:`mcdenoise.render.sequences.warp_previous` is the renderer's own
+KPCN) use it; :func:`mcdenoise.render.animation.warp_previous` is the renderer's own
 ``grid_sample`` check of its motion vectors, with border clamping and no mask.
 """
 

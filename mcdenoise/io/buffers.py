@@ -29,7 +29,7 @@ motion_next_valid  1   1 where ``motion_next`` can be trusted: sampling frame t 
 
 ``motion_next`` of frame t and ``motion`` of frame t + 1 are opposite where both are valid:
 ``motion_next_t(p) = -motion_{t+1}(p + motion_next_t(p))``. ``mcdenoise render --frames``
-writes all four motion buffers (:mod:`mcdenoise.render.sequences`); Blender Cycles' ``Vector``
+writes all four motion buffers (:mod:`mcdenoise.render.animation`); Blender Cycles' ``Vector``
 pass gives ``motion`` and ``motion_next`` but no masks (:mod:`mcdenoise.io.profiles.cycles`).
 
 Where the camera ray escapes (background), ``depth``, ``position`` and ``normal`` are 0.

@@ -5,7 +5,7 @@ frames of one sequence in order, prepares each once (the single-frame kpcn's inp
 :func:`~mcdenoise.prep.kpcn_temporal.prepare_frame`), keeps the frames its window needs and
 denoises frame ``t`` from the window warped to it
 (:func:`~mcdenoise.prep.kpcn_temporal.warp_window`,
-:class:`~mcdenoise.models.temporal.TemporalKpcn`). In the default ``offline`` mode the window
+:class:`~mcdenoise.models.kpcn_temporal.TemporalKpcn`). In the default ``offline`` mode the window
 holds past and future frames, so frame ``t`` is yielded once frame ``t + window // 2`` has
 been read; ``mode=causal`` uses past frames only (interactive use: each frame is yielded as
 soon as it is read). ``window`` (default: the model's) may be changed at inference; the
@@ -13,7 +13,7 @@ shipped model was trained with 5 (offline).
 
 Frames without motion are cuts: the frames beyond them in the window are dropped (mask 0),
 so a still image or a one-frame sequence gives the single-frame kpcn's result (bit for bit:
-:meth:`~mcdenoise.models.temporal.TemporalKpcn.denoise_window`). ``motion_valid`` = 0 keeps a
+:meth:`~mcdenoise.models.kpcn_temporal.TemporalKpcn.denoise_window`). ``motion_valid`` = 0 keeps a
 pixel from reading the previous frame (disocclusions). ``mcdenoise denoise`` refuses a
 sequence whose frames have no motion at all for a temporal method before it gets here. All
 frames of a sequence must have one size and the buffers of one input source.
@@ -35,7 +35,7 @@ from mcdenoise.filters.settings import GUIDE_FEATURES, GUIDE_VARS
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method
 from mcdenoise.models.encoders import SOURCES
-from mcdenoise.models.temporal import TILE, TemporalKpcn, window_offsets
+from mcdenoise.models.kpcn_temporal import TILE, TemporalKpcn, window_offsets
 from mcdenoise.models.weights import SHIPPED, load_kpcn_temporal, shipped_model_path
 from mcdenoise.prep.kpcn import (
     DEFAULT_PREFILTER,

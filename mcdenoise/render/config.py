@@ -85,7 +85,7 @@ class RenderConfig:
         if not isinstance(self.halves, bool):
             raise RenderError(f"halves must be True or False, got {self.halves!r}")
         if self.frames is not None:
-            from mcdenoise.render.sequences import check_frames
+            from mcdenoise.render.animation import check_frames
 
             try:
                 check_frames(self.frames)

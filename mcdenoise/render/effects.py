@@ -29,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from mcdenoise.render.spec import SceneSpec, SpecError
+from mcdenoise.render.scene_spec import SceneSpec, SpecError
 
 #: Feature buffers written for a lit scene and for an AO scene (each with its ``_var``).
 LIT_FEATURES: tuple[str, ...] = ("albedo", "normal", "depth", "position")

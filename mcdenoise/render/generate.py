@@ -19,7 +19,7 @@ Resume and shards
     levels, reference spp, pass size) differ from a manifest already there is refused.
 
 Sequences (``frames = N``, ``--frames N``)
-    Every job is then a sequence of ``N`` frames (:mod:`mcdenoise.render.sequences`: the
+    Every job is then a sequence of ``N`` frames (:mod:`mcdenoise.render.animation`: the
     spec's ``[animation]`` camera path and object motion, or a gentle default orbit). Each
     frame is rendered exactly like a still image (every level, the reference) with the
     frame's camera (``scene_dict(..., camera=...)``) and object positions, and its own image
@@ -201,7 +201,7 @@ def render_dataset(
     samples_out: str | os.PathLike[str] | None = None,
 ) -> GenerateResult:
     """What ``mcdenoise render`` runs: the scene specs of ``paths`` (files or folders of
-    ``*.toml``, :func:`~mcdenoise.render.spec.collect_specs`) and ``random`` procedural scenes
+    ``*.toml``, :func:`~mcdenoise.render.scene_spec.collect_specs`) and ``random`` procedural scenes
     rendered into ``config.out`` by :func:`generate`, ids and seeds from ``config.seed``.
 
     ``samples_out``: afterwards, also write every image of the folder in the layout of
@@ -214,7 +214,7 @@ def render_dataset(
     from mcdenoise.errors import InputError
     from mcdenoise.render.jobs import make_jobs
     from mcdenoise.render.layout import export_samples
-    from mcdenoise.render.spec import collect_specs
+    from mcdenoise.render.scene_spec import collect_specs
 
     if not paths and random is None:
         raise InputError("nothing to render: give SPEC.toml files (or folders) or --random N")
@@ -287,7 +287,7 @@ def render_sequence(
     """
     import mitsuba as mi
 
-    from mcdenoise.render import sequences as sq
+    from mcdenoise.render import animation as sq
 
     if config.frames is None:
         raise RenderError("render_sequence needs config.frames")

@@ -40,7 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from mcdenoise.render.config import RenderError, check_spp_levels
-from mcdenoise.render.spec import SceneSpec
+from mcdenoise.render.scene_spec import SceneSpec
 
 _SEED_MOD = 2**31
 
@@ -119,7 +119,7 @@ def make_jobs(
         SpecError: a spec file that cannot be read or is invalid.
         RenderError: ``random`` is not an integer >= 1, or the generator is missing.
     """
-    from mcdenoise.render.spec import load_spec
+    from mcdenoise.render.scene_spec import load_spec
 
     jobs = jobs_from_specs([load_spec(f) for f in spec_files], seed=seed)
     if random is not None:

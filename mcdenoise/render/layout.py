@@ -24,7 +24,7 @@ it reads the first (lowest spp).
 
 Sequences (``--frames N``) write one folder per sequence, every frame with the ``motion``,
 ``motion_valid``, ``motion_next`` and ``motion_next_valid`` buffers added to every part
-(:mod:`mcdenoise.render.sequences`)::
+(:mod:`mcdenoise.render.animation`)::
 
     DIR/<id>/frame_0000.exr       levels of frame 0 (parts spp<n>), + motion buffers
     DIR/<id>/ref/frame_0000.exr   its reference, + motion buffers
@@ -54,7 +54,7 @@ from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.effects import EffectPlan
 from mcdenoise.render.jobs import ImageJob
 from mcdenoise.render.passes import RenderedImage
-from mcdenoise.render.spec import Camera, SceneSpec
+from mcdenoise.render.scene_spec import Camera, SceneSpec
 
 
 def noisy_file(image_id: str) -> str:

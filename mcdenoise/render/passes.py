@@ -55,7 +55,7 @@ from mcdenoise.render.moments import (
     moment_integrator,
     render_moments,
 )
-from mcdenoise.render.spec import Camera
+from mcdenoise.render.scene_spec import Camera
 
 
 @dataclass

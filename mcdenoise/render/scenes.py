@@ -1,6 +1,6 @@
 """From a scene spec to a Mitsuba 3 scene: the ``mi.load_dict`` dictionary, and the variant.
 
-:func:`scene_dict` maps every spec feature (:mod:`mcdenoise.render.spec`) onto Mitsuba 3.9
+:func:`scene_dict` maps every spec feature (:mod:`mcdenoise.render.scene_spec`) onto Mitsuba 3.9
 plugins; what is *simulated* (integrator, path depth, lens) comes from the effect plan
 (:mod:`mcdenoise.render.effects`). :func:`ensure_variant` picks and sets the Mitsuba variant
 and registers the project's integrators; call it before :func:`scene_dict`.
@@ -79,7 +79,7 @@ import numpy as np
 from mcdenoise.errors import InputError
 from mcdenoise.render.effects import EffectPlan
 from mcdenoise.render.procedural import NOISE_CELLS, noise_image, sky_image
-from mcdenoise.render.spec import (
+from mcdenoise.render.scene_spec import (
     Camera,
     Light,
     Material,

@@ -1,7 +1,7 @@
 """Training: configuration, patches from rendered data, run folders, the loop, baselines.
 
 Modules: :mod:`~mcdenoise.train.config` (TrainConfig from TOML + flags),
-:mod:`~mcdenoise.train.dataset` (scan, split by image, load with a model's ``prepare`` hook,
+:mod:`~mcdenoise.train.patches` (scan, split by image, load with a model's ``prepare`` hook,
 importance-sampled crops with exact loss masks), :mod:`~mcdenoise.train.checkpoint` (run
 folders: ``config.json``, ``checkpoints/``, ``latest``, ``metrics.jsonl``, ``model.pt``),
 :mod:`~mcdenoise.train.loop` (the model-agnostic loop: AdamW, schedule, validation, exact
@@ -14,8 +14,8 @@ the baseline of the learned ones).
 
 from mcdenoise.train.checkpoint import CheckpointError, RunFolder
 from mcdenoise.train.config import TrainConfig, load_config
-from mcdenoise.train.dataset import PatchSampler, load_items, scan_dataset, split_images
 from mcdenoise.train.loop import TrainResult, train
+from mcdenoise.train.patches import PatchSampler, load_items, scan_dataset, split_images
 
 __all__ = [
     "CheckpointError",

@@ -42,7 +42,9 @@ from mcdenoise.models.auxnet import AuxCard, AuxNet, net_inputs
 from mcdenoise.prep.inputs import exposure_scale, prepare_inputs
 from mcdenoise.prep.learned_prefilter import noise_channels
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import (
+from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.pack import load_training_data
+from mcdenoise.train.patches import (
     REFERENCE,
     Item,
     LoadReport,
@@ -50,8 +52,6 @@ from mcdenoise.train.dataset import (
     augment,
     describe_training,
 )
-from mcdenoise.train.loop import TrainResult, run_training
-from mcdenoise.train.pack import load_training_data
 
 #: Kernel edge when the config says 0.
 DEFAULT_KERNEL = 7

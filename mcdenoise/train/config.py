@@ -28,7 +28,7 @@ from typing import Any, get_type_hints
 from mcdenoise.errors import InputError
 from mcdenoise.losses import LOSSES as LOSS_FUNCTIONS
 from mcdenoise.modelfile import MAX_WIDTH
-from mcdenoise.models.temporal import MAX_WINDOW
+from mcdenoise.models.kpcn_temporal import MAX_WINDOW
 
 #: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`):
 #: those of :mod:`mcdenoise.losses`, and ``log-relmse``

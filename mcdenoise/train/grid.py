@@ -20,11 +20,11 @@ from typing import Any
 import torch
 
 from mcdenoise.filters.settings import GUIDE_FEATURES
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import new_model
 from mcdenoise.progress import Mode, progress_bar
-from mcdenoise.stats import geometric_mean
-from mcdenoise.train.dataset import Item, image_relmse
+from mcdenoise.train.patches import Item, image_relmse
 
 #: Default grids: the main bandwidths of each filter (values around the tuned defaults).
 GRIDS: dict[str, dict[str, list[Any]]] = {
@@ -88,7 +88,7 @@ def grid_search(
 
     Args:
         kind: ``"xbf"``, ``"nlm"`` or ``"xbf2"`` (two-pass cross-bilateral grid).
-        items: prepared whole images (from :func:`~mcdenoise.train.dataset.load_items` with
+        items: prepared whole images (from :func:`~mcdenoise.train.patches.load_items` with
             :func:`~mcdenoise.prep.kalantari.prepare_item`), with ``reference``.
         grid: setting name -> values (default :data:`GRIDS`).
         progress: report the search on stderr (:func:`mcdenoise.progress.progress_bar`: a

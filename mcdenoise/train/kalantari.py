@@ -1,7 +1,7 @@
 """Training the Kalantari 2015 models (``kalantari-xbf``, ``kalantari-nlm``) end to end.
 
 The loss is relMSE (ε = 0.01) between the filtered, remodulated colour and the reference,
-on the masked centre of each crop (:class:`~mcdenoise.train.dataset.PatchSampler`); its
+on the masked centre of each crop (:class:`~mcdenoise.train.patches.PatchSampler`); its
 gradient flows through the filter (weights, per-pixel bandwidths) into the MLP. Every level
 of the data set (e.g. 4, 16 and 64 spp) is trained on together: the ``spp`` and noise-level
 features tell the network which it is looking at.
@@ -23,13 +23,14 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES, filter_radius
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.losses import crop_log_relmse, relmse
 from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import KalantariModel, new_model, settings_class
 from mcdenoise.prep.kalantari import prepare_item
-from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import (
+from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.patches import (
     Item,
     LoadReport,
     PatchSampler,
@@ -37,7 +38,6 @@ from mcdenoise.train.dataset import (
     image_relmse,
     load_split,
 )
-from mcdenoise.train.loop import TrainResult, run_training
 
 #: Trainable model names -> filter kind.
 MODELS = {"kalantari-xbf": "xbf", "kalantari-nlm": "nlm"}

@@ -3,7 +3,7 @@
 Data: a folder made by ``mcdenoise render`` (every spp level of every image; the split is by
 image). Each image is prepared once for the ``full`` source
 (:func:`~mcdenoise.prep.kpcn.prepare_tensors`); crops are drawn ∝ the noisy error
-(:class:`~mcdenoise.train.dataset.PatchSampler`), augmented (flips, 90° rotations, RGB
+(:class:`~mcdenoise.train.patches.PatchSampler`), augmented (flips, 90° rotations, RGB
 permutations) and each crop is shown to the network as one of the
 trained sources (round robin from a random offset, so every encoder is used every step when
 ``batch >= len(sources)``): a ``basic`` crop simply lacks the variance, depth, position and
@@ -36,22 +36,13 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.losses import compute_loss, crop_log_relmse
 from mcdenoise.models.encoders import SOURCES, channel_names, encoder, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel, new_model
 from mcdenoise.prep.kpcn import COLOR_TENSORS, exposure_scale, prepare_tensors, scale_exposure
-from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import (
-    Item,
-    LoadReport,
-    PatchSampler,
-    Prepare,
-    augment,
-    describe_training,
-    image_relmse,
-)
 from mcdenoise.train.loop import TrainResult, run_training
 from mcdenoise.train.pack import (
     PackSummary,
@@ -59,6 +50,15 @@ from mcdenoise.train.pack import (
     load_training_data,
     pack_items,
     pack_meta,
+)
+from mcdenoise.train.patches import (
+    Item,
+    LoadReport,
+    PatchSampler,
+    Prepare,
+    augment,
+    describe_training,
+    image_relmse,
 )
 
 #: Pixel stride of the samples the normalisation statistics are computed from.
@@ -287,7 +287,7 @@ PACK_KEYS = (
 
 
 def make_prepare(cfg: TrainConfig, sources: Sequence[str]) -> Prepare:
-    """The ``prepare`` hook of :func:`~mcdenoise.train.dataset.load_items` for ``cfg``: the
+    """The ``prepare`` hook of :func:`~mcdenoise.train.patches.load_items` for ``cfg``: the
     ``full`` source's tensors, the ``basic`` crops' prefiltered albedo and normal, the
     reference, and the exposure normalisation."""
 

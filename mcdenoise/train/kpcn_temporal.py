@@ -17,14 +17,14 @@ windows are cropped there and denoised, and the loss (on the crop centre) is
 
 (:func:`mcdenoise.losses.temporal_smape`; Isik et al. 2021 and Balint et al. 2023 use this
 temporal term). The differences are taken at the same pixel, not along the motion: that is
-the temporal relMSE this project reports (``mcdenoise.eval.temporal``), and the crops then
+the temporal relMSE this project reports (``mcdenoise.eval.temporal_metrics``), and the crops then
 need no motion, so flips, 90° rotations and RGB permutations (the single-frame trainer's
 augmentation) stay valid.
 
 Training follows the paper: the model starts from a trained single-frame kpcn (``base`` =
 ``--from``: a kpcn run folder or model file, e.g. the shipped
 ``mcdenoise/models/weights/kpcn.pt``) with the temporal module at its zero start
-(:func:`~mcdenoise.models.temporal.from_single_frame`), and ``trunk = "frozen"`` (default)
+(:func:`~mcdenoise.models.kpcn_temporal.from_single_frame`), and ``trunk = "frozen"`` (default)
 trains only the temporal module (the trunk runs without autograd: much cheaper steps).
 A second run from that ``kpcn-temporal`` run with ``trunk = "train"`` fine-tunes everything.
 
@@ -47,18 +47,18 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import compute_loss, temporal_smape
 from mcdenoise.modelfile import read_card
 from mcdenoise.models.kpcn import KpcnModel
-from mcdenoise.models.temporal import FORMAT as TEMPORAL_FORMAT
-from mcdenoise.models.temporal import TemporalKpcn, from_single_frame, window_offsets
+from mcdenoise.models.kpcn_temporal import FORMAT as TEMPORAL_FORMAT
+from mcdenoise.models.kpcn_temporal import TemporalKpcn, from_single_frame, window_offsets
 from mcdenoise.prep.kpcn import exposure_scale
 from mcdenoise.prep.kpcn_temporal import PreparedFrame, prepare_frame, warp_window
-from mcdenoise.stats import geometric_mean
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import LoadReport, augment
 from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.patches import LoadReport, augment
 
 #: The input source the temporal module is trained on (every frame of a render has it).
 SOURCE = "full"
@@ -147,7 +147,7 @@ def cache_features(model: TemporalKpcn, seqs: Sequence[Sequence_]) -> None:
 
 class PairSampler:
     """Seeded batches of crops of consecutive frame pairs (``(t − 1, t)``, see the module
-    docstring); the duck type of :class:`~mcdenoise.train.dataset.PatchSampler` that
+    docstring); the duck type of :class:`~mcdenoise.train.patches.PatchSampler` that
     :func:`mcdenoise.train.loop.train` uses (``batch(size, generator)``)."""
 
     def __init__(self, seqs: Sequence[Sequence_], *, patch: int, margin: int, aug: bool) -> None:

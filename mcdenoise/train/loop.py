@@ -41,7 +41,6 @@ from mcdenoise.errors import InputError
 from mcdenoise.progress import progress_bar, write_line
 from mcdenoise.train.checkpoint import CheckpointError, RunFolder
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import LoadReport, PatchSampler
 from mcdenoise.train.distributed import (
     DistContext,
     all_gather_object,
@@ -53,6 +52,7 @@ from mcdenoise.train.distributed import (
     read_env,
     resolve_device,
 )
+from mcdenoise.train.patches import LoadReport, PatchSampler
 
 #: Config keys that may differ when resuming (they do not change the result).
 RESUME_FREE = ("device", "threads", "data")

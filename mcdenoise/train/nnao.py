@@ -28,8 +28,8 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.methods.nnao import gbuffer_for, nnao_inputs
 from mcdenoise.models.nnao import NnaoCard, NnaoModel
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import REFERENCE, Item, LoadReport, describe_training, load_split
 from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.patches import REFERENCE, Item, LoadReport, describe_training, load_split
 
 #: Pixels per unit of ``batch`` (``batch = 8``: 8192 pixels a step).
 PIXELS_PER_BATCH = 1024

@@ -2,8 +2,8 @@
 ``.npz`` file, read with numpy and torch alone.
 
 ``mcdenoise train --model kpcn --data DIR --pack SET.npz`` scans, splits and prepares ``DIR``
-exactly as training does (:func:`~mcdenoise.train.dataset.scan_dataset`,
-:func:`~mcdenoise.train.dataset.split_images`, :func:`~mcdenoise.train.dataset.load_items` with
+exactly as training does (:func:`~mcdenoise.train.patches.scan_dataset`,
+:func:`~mcdenoise.train.patches.split_images`, :func:`~mcdenoise.train.patches.load_items` with
 the model's ``prepare`` hook) and writes the tensors; ``mcdenoise train --data SET.npz`` then
 trains from the file (a ``.npz`` ``data`` is a pack) without reading an EXR, so without
 OpenImageIO, OpenEXR or Mitsuba: a machine with only torch and numpy can train.
@@ -40,7 +40,7 @@ import torch
 from mcdenoise.errors import InputError
 from mcdenoise.io.atomic import atomic_path
 from mcdenoise.progress import Mode
-from mcdenoise.train.dataset import (
+from mcdenoise.train.patches import (
     REFERENCE,
     Entry,
     Item,
@@ -256,7 +256,7 @@ def pack_items(
     shard_bytes: int = 0,
     progress: Mode = False,
 ) -> PackSummary:
-    """Scan, split and prepare ``cfg.data`` as :func:`~mcdenoise.train.dataset.load_split`
+    """Scan, split and prepare ``cfg.data`` as :func:`~mcdenoise.train.patches.load_split`
     does (every training image whatever its size) and write the pack ``path``; ``keys``: the
     config keys the preparation depends on.
 
@@ -313,7 +313,7 @@ def pack_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
 def read_pack(
     cfg: Any, *, crop: int, keys: Sequence[str] = ()
 ) -> tuple[list[Item], list[Item], LoadReport]:
-    """The pack ``cfg.data`` as :func:`~mcdenoise.train.dataset.load_split` returns a folder:
+    """The pack ``cfg.data`` as :func:`~mcdenoise.train.patches.load_split` returns a folder:
     ``(train items, validation items, report)``; training images smaller than ``crop`` are
     skipped and reported.
 
@@ -397,7 +397,7 @@ def load_training_data(
     progress: Mode = False,
 ) -> tuple[list[Item], list[Item], LoadReport]:
     """:func:`read_pack` when ``cfg.data`` is a pack, else
-    :func:`~mcdenoise.train.dataset.load_split` of the folder."""
+    :func:`~mcdenoise.train.patches.load_split` of the folder."""
     if is_pack(cfg.data):
         return read_pack(cfg, crop=crop, keys=keys)
     return load_split(cfg, prepare, crop=crop, progress=progress)

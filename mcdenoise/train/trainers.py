@@ -21,9 +21,9 @@ from mcdenoise.errors import InputError
 from mcdenoise.train import auxnet, kalantari, kpcn, kpcn_temporal, nnao
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import TrainConfig, load_config
-from mcdenoise.train.dataset import LoadReport
 from mcdenoise.train.loop import TrainResult
 from mcdenoise.train.pack import PackSummary, is_pack
+from mcdenoise.train.patches import LoadReport
 
 #: ``train(cfg, out, *, resume, progress) -> (TrainResult, LoadReport)``.
 TrainFn = Callable[..., tuple[TrainResult, LoadReport]]

@@ -14,8 +14,8 @@ from mcdenoise.errors import InputError
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.camera import CameraInfo, camera_from_attributes, camera_from_record, look_at
 from mcdenoise.methods.ao import METHODS
+from mcdenoise.render.scene_spec import Camera
 from mcdenoise.render.scenes import camera_metadata, camera_to_world
-from mcdenoise.render.spec import Camera
 
 
 def test_io_look_at_is_the_renderers():

@@ -13,7 +13,7 @@ from fast_methods import run_cli
 
 from mcdenoise.errors import InputError
 from mcdenoise.eval import evaluate_sequence_arrays, evaluate_sequences, temporal_relmse
-from mcdenoise.eval.temporal import TEMPORAL_METRICS
+from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS
 from mcdenoise.io import exr
 from mcdenoise.io.exr import ExrPartData
 

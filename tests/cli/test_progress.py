@@ -118,7 +118,7 @@ def test_library_code_does_not_print() -> None:
         "denoise.py",
         "experiments/runner.py",
         "eval/evaluate.py",
-        "eval/sequences.py",
+        "eval/evaluate_sequences.py",
         "render/generate.py",
         "train/loop.py",
     ):

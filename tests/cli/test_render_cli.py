@@ -131,7 +131,7 @@ def test_random_without_the_generator_is_a_clear_error(tmp_path: Path, monkeypat
 def test_random_scenes_are_rendered_and_recorded(tmp_path: Path) -> None:
     pytest.importorskip("mcdenoise.render.random_scenes")
     from mcdenoise.render.random_scenes import random_spec
-    from mcdenoise.render.spec import parse_spec
+    from mcdenoise.render.scene_spec import parse_spec
 
     out = tmp_path / "r"
     r = run("render", "--random", "2", "--seed", "5", "-o", str(out), *TINY)

@@ -41,8 +41,8 @@ def sample_scene(name: str, size: int) -> dict[str, Any]:
     it (``moment`` -> ``aov`` -> the plan's integrator), ``size`` x ``size`` pixels."""
     from mcdenoise.render.effects import plan_effects
     from mcdenoise.render.moments import moment_integrator
+    from mcdenoise.render.scene_spec import load_spec
     from mcdenoise.render.scenes import scene_dict
-    from mcdenoise.render.spec import load_spec
 
     spec = load_spec(SPECS / f"{name}.toml")
     plan = plan_effects(spec)
@@ -60,7 +60,7 @@ def render_buffers(scene: Any, spp: int, seed: int) -> dict[str, np.ndarray]:
 
 def test_every_shipped_scene_has_its_spec() -> None:
     from mcdenoise.render.effects import plan_effects
-    from mcdenoise.render.spec import collect_specs, load_spec
+    from mcdenoise.render.scene_spec import collect_specs, load_spec
 
     specs = {load_spec(p).name: load_spec(p) for p in collect_specs([SPECS])}
     assert sorted(specs) == sorted(SCENES)

@@ -1,4 +1,4 @@
-"""Tests for mcdenoise/eval/report.py (and results.py): JSON, CSV and HTML on in-memory images."""
+"""Tests for mcdenoise/eval/eval_report.py (and results.py): JSON, CSV and HTML on in-memory images."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from mcdenoise.errors import McdenoiseError
-from mcdenoise.eval import evaluate_arrays, report, write_report
+from mcdenoise.eval import eval_report as report
+from mcdenoise.eval import evaluate_arrays, write_report
 from mcdenoise.eval import metrics as M
 from mcdenoise.eval.results import EvalRecord, EvalResult, decode_float, jsonable
 from mcdenoise.io.atomic import TMP_PREFIX

@@ -1,4 +1,4 @@
-"""Tests for mcdenoise/eval/temporal.py: temporal relMSE, Noisebase's tPSNR/tRMAE, warm-up."""
+"""Tests for mcdenoise/eval/temporal_metrics.py: temporal relMSE, Noisebase's tPSNR/tRMAE, warm-up."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from mcdenoise.errors import InputError
-from mcdenoise.eval import temporal as T
+from mcdenoise.eval import temporal_metrics as T
 from mcdenoise.eval.metrics import MetricUnavailable, relmse
 
 H, W = 8, 10

@@ -12,7 +12,7 @@ import pytest
 from synthetic_data import write_spec
 from synthetic_sequences import add_running_mean, make_sequence_folder
 
-from mcdenoise.eval.temporal import sequence_metrics
+from mcdenoise.eval.temporal_metrics import sequence_metrics
 from mcdenoise.experiments import ExperimentError, load_experiment, run_experiment
 from mcdenoise.io import load_buffers
 

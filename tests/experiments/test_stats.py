@@ -15,7 +15,7 @@ from mcdenoise.experiments.stats import (
     compare_methods,
     wins,
 )
-from mcdenoise.stats import geometric_mean
+from mcdenoise.geomean import geometric_mean
 
 SCENES = [f"s{i}" for i in range(8)]
 

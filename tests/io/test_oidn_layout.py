@@ -154,9 +154,9 @@ def test_oidns_own_reader_sees_the_written_set(tmp_path):
 
 
 def test_train_reads_the_written_set_like_the_render_folder(tmp_path):
-    """``mcdenoise train``'s scanner (mcdenoise/train/dataset.py) on the OIDN set: the same
+    """``mcdenoise train``'s scanner (mcdenoise/train/patches.py) on the OIDN set: the same
     (image, spp) pairs as on the render folder, the same colour and reference pixels."""
-    from mcdenoise.train.dataset import load_items, scan_dataset
+    from mcdenoise.train.patches import load_items, scan_dataset
 
     src = render_folder(tmp_path / "render", ids=("alpha", "beta"), spp=(1, 4))
     write_oidn_layout(src, tmp_path / "oidn")

@@ -15,7 +15,7 @@ from mcdenoise.methods.kpcn_temporal import denoise_kpcn_temporal_sequence
 from mcdenoise.models.encoders import channel_names, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnModel, new_model
-from mcdenoise.models.temporal import from_single_frame
+from mcdenoise.models.kpcn_temporal import from_single_frame
 from mcdenoise.models.weights import load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import prepare_tensors
 

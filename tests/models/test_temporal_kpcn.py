@@ -12,7 +12,7 @@ from mcdenoise.io import load_buffers
 from mcdenoise.models.encoders import SOURCES, channel_names, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnModel, new_model
-from mcdenoise.models.temporal import (
+from mcdenoise.models.kpcn_temporal import (
     TemporalKpcn,
     apply_joint,
     frame_log_softmax,

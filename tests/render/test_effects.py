@@ -7,7 +7,7 @@ import copy
 import pytest
 
 from mcdenoise.render.effects import AO_FEATURES, DIRECT_DEPTH, plan_effects
-from mcdenoise.render.spec import SpecError, parse_spec
+from mcdenoise.render.scene_spec import SpecError, parse_spec
 
 DIFFUSE = {"type": "diffuse", "reflectance": [0.7, 0.7, 0.7]}
 GLASS = {"type": "dielectric"}

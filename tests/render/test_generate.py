@@ -37,7 +37,7 @@ from mcdenoise.render.moments import (
     moments_from_film,
 )
 from mcdenoise.render.passes import render_image
-from mcdenoise.render.spec import SpecError, load_spec, parse_spec
+from mcdenoise.render.scene_spec import SpecError, load_spec, parse_spec
 
 VARIANT = "scalar_rgb"
 LIT_BUFFERS = {

@@ -25,7 +25,7 @@ from mcdenoise.render.jobs import ImageJob, half_level_passes, jobs_from_specs
 from mcdenoise.render.manifest import load_manifest
 from mcdenoise.render.moments import Moments, buffers_from_halves
 from mcdenoise.render.passes import render_image
-from mcdenoise.render.spec import load_spec, parse_spec
+from mcdenoise.render.scene_spec import load_spec, parse_spec
 
 VARIANT = "scalar_rgb"
 

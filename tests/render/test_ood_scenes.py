@@ -20,7 +20,7 @@ import pytest
 from scene_specs import BALL_SCENE
 
 from mcdenoise.render.effects import plan_effects
-from mcdenoise.render.spec import collect_specs, load_spec
+from mcdenoise.render.scene_spec import collect_specs, load_spec
 
 mi = pytest.importorskip("mitsuba")
 from mcdenoise.render import scenes  # noqa: E402  (after the importorskip)

@@ -28,8 +28,8 @@ from mcdenoise.errors import InputError, McdenoiseError
 from mcdenoise.render import random_scenes as rs
 from mcdenoise.render.effects import plan_effects
 from mcdenoise.render.random_scenes import distribution as dist_module
+from mcdenoise.render.scene_spec import EFFECTS, LIGHTS, MATERIALS, SHAPES, TEXTURES, parse_spec
 from mcdenoise.render.sh import sh_to_latlong_with_stats
-from mcdenoise.render.spec import EFFECTS, LIGHTS, MATERIALS, SHAPES, TEXTURES, parse_spec
 
 N_FREQ = 500  # specs for the frequency checks (about 1.5 s to generate)
 SEED = 20240611

@@ -18,7 +18,7 @@ import pytest
 
 from mcdenoise.errors import InputError
 from mcdenoise.render.effects import plan_effects
-from mcdenoise.render.spec import Camera, SpecError, load_spec, parse_spec
+from mcdenoise.render.scene_spec import Camera, SpecError, load_spec, parse_spec
 
 mi = pytest.importorskip("mitsuba")
 from mcdenoise.render import scenes  # noqa: E402  (after the importorskip)
@@ -571,7 +571,7 @@ def test_given_integrator_replaces_the_plans():
 
 
 def test_materials_map_to_mitsuba_plugins():
-    from mcdenoise.render.spec import Material, Texture
+    from mcdenoise.render.scene_spec import Material, Texture
 
     b = scenes.bsdf_dict(Material(type="roughplastic", roughness=0.2, ior=1.4))
     assert b["type"] == "twosided"

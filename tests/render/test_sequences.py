@@ -1,4 +1,4 @@
-"""Tests of ``mcdenoise.render.sequences`` and of sequences in ``generate`` / ``mcdenoise render``.
+"""Tests of ``mcdenoise.render.animation`` and of sequences in ``generate`` / ``mcdenoise render``.
 
 Camera paths are checked as geometry (no Mitsuba). Motion vectors are checked against
 analytic values on a plane (pure camera translation, dolly), a moving object under a static
@@ -23,15 +23,15 @@ import torch
 
 from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers, probe_exr, read_exr
+from mcdenoise.render import animation as sq
 from mcdenoise.render import generate as gen
-from mcdenoise.render import sequences as sq
 from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.effects import plan_effects
 from mcdenoise.render.generate import generate
 from mcdenoise.render.jobs import jobs_from_specs
 from mcdenoise.render.layout import export_samples, frame_file, frame_reference_file
 from mcdenoise.render.manifest import load_manifest
-from mcdenoise.render.spec import SpecError, parse_spec
+from mcdenoise.render.scene_spec import SpecError, parse_spec
 
 VARIANT = "scalar_rgb"
 

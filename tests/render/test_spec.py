@@ -1,4 +1,4 @@
-"""Scene spec parsing and validation (mcdenoise/render/spec.py)."""
+"""Scene spec parsing and validation (mcdenoise/render/scene_spec.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mcdenoise.render.spec import SH_COEFFS, SpecError, Transform, load_spec, parse_spec
+from mcdenoise.render.scene_spec import SH_COEFFS, SpecError, Transform, load_spec, parse_spec
 
 BASE = {
     "name": "t",
@@ -253,7 +253,7 @@ def test_sun_direction_round_trips_bit_for_bit():
 
 
 def test_collect_specs_expands_folders_in_name_order(tmp_path: Path) -> None:
-    from mcdenoise.render.spec import collect_specs
+    from mcdenoise.render.scene_spec import collect_specs
 
     (tmp_path / "d").mkdir()
     for name in ("b.toml", "a.toml", "c.json"):

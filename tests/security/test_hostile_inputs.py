@@ -42,8 +42,8 @@ from mcdenoise.io.exr import write_exr
 from mcdenoise.modelfile import CheckpointError, load_state
 from mcdenoise.models.kalantari import KalantariModel, ModelCard
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel
+from mcdenoise.models.kpcn_temporal import TemporalCard, TemporalKpcn
 from mcdenoise.models.nnao import NnaoCard, NnaoModel
-from mcdenoise.models.temporal import TemporalCard, TemporalKpcn
 from mcdenoise.models.weights import WEIGHTS
 
 SAMPLE = Path(__file__).resolve().parents[2] / "data" / "samples" / "cornell_spp4.exr"

@@ -10,7 +10,7 @@ import torch
 
 from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers, save_buffers
-from mcdenoise.train.dataset import (
+from mcdenoise.train.patches import (
     PatchSampler,
     check_reference,
     error_map,

@@ -13,7 +13,7 @@ from mcdenoise.losses import temporal_smape
 from mcdenoise.models.encoders import channel_names, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import new_model
-from mcdenoise.models.temporal import from_single_frame
+from mcdenoise.models.kpcn_temporal import from_single_frame
 from mcdenoise.prep.kpcn import prepare_tensors
 from mcdenoise.prep.kpcn_temporal import PreparedFrame, warp_window
 from mcdenoise.train.config import load_config

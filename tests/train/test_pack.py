@@ -20,9 +20,9 @@ from mcdenoise.errors import InputError
 from mcdenoise.models.encoders import SOURCES
 from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.train.config import load_config
-from mcdenoise.train.dataset import load_split
 from mcdenoise.train.kpcn import PACK_KEYS, make_prepare, pack_kpcn, train_kpcn
 from mcdenoise.train.pack import FLOAT16_MAX, is_pack, pack_meta, read_pack
+from mcdenoise.train.patches import load_split
 
 REPO = Path(__file__).resolve().parents[2]
 #: The tiny kpcn of tests/train/test_train_kpcn.py; prefilter=auto: the basic crops' tensors too.

@@ -13,9 +13,10 @@ import pytest
 from mcdenoise import progress
 from mcdenoise.models.kalantari import settings_class
 from mcdenoise.prep.kalantari import prepare_item
-from mcdenoise.train import dataset, grid
-from mcdenoise.train.dataset import load_items, scan_dataset
+from mcdenoise.train import grid
+from mcdenoise.train import patches as dataset
 from mcdenoise.train.grid import grid_search
+from mcdenoise.train.patches import load_items, scan_dataset
 
 ONE_THREAD = True
 GUIDES = ["albedo", "normal", "depth", "position"]

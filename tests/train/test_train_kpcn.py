@@ -25,7 +25,6 @@ from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.prep.kpcn import COLOR_TENSORS, exposure_scale, prepare_tensors
 from mcdenoise.train.checkpoint import RunFolder
 from mcdenoise.train.config import load_config
-from mcdenoise.train.dataset import augment
 from mcdenoise.train.kpcn import (
     BASIC_SUFFIX,
     UNUSED_SCALE_WEIGHT,
@@ -34,6 +33,7 @@ from mcdenoise.train.kpcn import (
     train_kpcn,
     use_basic_features,
 )
+from mcdenoise.train.patches import augment
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 #: A tiny kpcn: 3 U-Net levels of 8 channels, 5x5 kernels at 3 scales, 32-px crops.
@@ -464,8 +464,8 @@ def test_cli_kpcn_with_a_missing_model_fails_in_one_line(tmp_path: Path) -> None
 def test_the_cli_warns_when_the_model_ends_worse_than_its_noisy_input(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from mcdenoise.train.dataset import LoadReport
     from mcdenoise.train.loop import TrainResult
+    from mcdenoise.train.patches import LoadReport
 
     def collapsed(cfg, out, *, resume=False, progress=True):
         metrics = [{"step": 8, "val_full_ratio_to_noisy": 7.9, "val_basic_ratio_to_noisy": 0.2}]

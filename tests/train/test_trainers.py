@@ -11,8 +11,8 @@ import mcdenoise.train.kalantari as kalantari_module
 import mcdenoise.train.kpcn as kpcn_module
 from mcdenoise.errors import InputError
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.dataset import LoadReport
 from mcdenoise.train.loop import TrainResult
+from mcdenoise.train.patches import LoadReport
 from mcdenoise.train.trainers import TRAINERS, get_trainer, train_model
 
 

@@ -22,9 +22,9 @@ from mcdenoise.models.auxnet import AuxNet
 from mcdenoise.models.kalantari import KalantariModel
 from mcdenoise.models.kpcn import FORMAT as KPCN_FORMAT
 from mcdenoise.models.kpcn import KpcnModel
+from mcdenoise.models.kpcn_temporal import FORMAT as TEMPORAL_FORMAT
+from mcdenoise.models.kpcn_temporal import TemporalKpcn
 from mcdenoise.models.nnao import FORMAT as NNAO_FORMAT
-from mcdenoise.models.temporal import FORMAT as TEMPORAL_FORMAT
-from mcdenoise.models.temporal import TemporalKpcn
 
 WEIGHTS = Path(__file__).resolve().parent
 #: ``model`` parameter value of the learned methods meaning "the weights shipped here".

@@ -1,6 +1,6 @@
 """Seeded procedural scene specs for training data (``mcdenoise render --random N --seed S``).
 
-:func:`random_spec` ``(seed, index)`` builds one :class:`~mcdenoise.render.spec.SceneSpec`
+:func:`random_spec` ``(seed, index)`` builds one :class:`~mcdenoise.render.scene_spec.SceneSpec`
 from ``numpy.random.default_rng([seed, index])`` alone (no global state): the same pair gives
 the same spec in every process, and scene ``index`` of a data set does not depend on how many
 scenes were generated before it (shards are independent). Every spec survives
@@ -44,7 +44,7 @@ from mcdenoise.render.random_scenes.lights import random_sh_coefficients
 from mcdenoise.render.random_scenes.materials import is_glossy, is_specular
 from mcdenoise.render.random_scenes.placement import make_thinlens, unhidden
 from mcdenoise.render.random_scenes.sampling import choose
-from mcdenoise.render.spec import EFFECTS, SceneSpec, parse_spec
+from mcdenoise.render.scene_spec import EFFECTS, SceneSpec, parse_spec
 
 #: Scene archetypes and their probabilities.
 ARCHETYPES: Mapping[str, float] = DISTRIBUTION.archetypes

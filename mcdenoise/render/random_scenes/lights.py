@@ -103,7 +103,7 @@ _ULP_STEPS = sorted(itertools.product(range(-4, 5), repeat=3), key=lambda t: (su
 
 
 def _unit(direction: Sequence[float]) -> list[float]:
-    """A unit vector whose float norm is exactly 1.0, so :func:`~mcdenoise.render.spec.parse_spec`
+    """A unit vector whose float norm is exactly 1.0, so :func:`~mcdenoise.render.scene_spec.parse_spec`
     (which divides by the norm again) keeps it bit for bit and specs round-trip exactly: the
     normalised ``direction`` moved by at most a few ulps per component."""
     norm = math.sqrt(sum(float(c) ** 2 for c in direction))

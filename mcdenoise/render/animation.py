@@ -6,7 +6,7 @@ A sequence is a scene spec sampled at ``N`` frames, at sequence times ``s = f / 
 ``motion`` (to the previous frame) and ``motion_next`` (to the next frame) buffers and their
 reprojection validity masks, computed here.
 
-Camera paths (``[animation]`` of the spec, :class:`mcdenoise.render.spec.Animation`)
+Camera paths (``[animation]`` of the spec, :class:`mcdenoise.render.scene_spec.Animation`)
     ``orbit``: the origin turns about the axis through the target along the camera's ``up``,
     by ``angle · s`` degrees (positive: counter-clockwise seen from the ``up`` side);
     ``dolly``: ``origin + fraction · s · (target - origin)``; ``keyframes``: origin and target
@@ -77,7 +77,7 @@ import torch.nn.functional as F
 
 from mcdenoise.errors import InputError
 from mcdenoise.render.effects import EffectPlan
-from mcdenoise.render.spec import Animation, Camera, SceneSpec, SpecError
+from mcdenoise.render.scene_spec import Animation, Camera, SceneSpec, SpecError
 
 #: Default camera path of a sequence whose spec has no ``[animation]``: an orbit of this many
 #: degrees per frame about the target (``N - 1`` degrees over ``N`` frames).

@@ -15,7 +15,7 @@ sequence in place of an image:
   ``denoise_seconds``, and the last run's seconds of every frame are kept
   (``frame_seconds``). So ``total_seconds`` = render seconds per frame + denoise seconds per
   frame, and every curve and table of the report reads "per frame";
-* metrics: :func:`mcdenoise.eval.temporal.sequence_metrics` of the last run's output frames
+* metrics: :func:`mcdenoise.eval.temporal_metrics.sequence_metrics` of the last run's output frames
   against the reference frames (not reimplemented here): the headline ``metrics`` are the
   still metrics averaged over the frames past the warm-up and the temporal metrics over the
   frame pairs past it, ``warmup_metrics`` the warm-up frames' (reported apart), ``all_metrics``
@@ -64,7 +64,7 @@ def run_sequence_unit(
     frame); return its record. ``base`` gives the record's common fields, ``fail`` turns it
     into a "could not run" record, ``relative`` names a path relative to ``out`` (the
     runner's helpers, so still and sequence records share one layout)."""
-    from mcdenoise.eval.temporal import sequence_metrics
+    from mcdenoise.eval.temporal_metrics import sequence_metrics
 
     entry, level = unit.entry, unit.level
     record = base()
@@ -210,7 +210,7 @@ def temporal_rows(result: Any, scenes: Sequence[str] | None = None) -> list[dict
     :data:`TEMPORAL_OVERALL`; a value is ``None`` unless every sequence has it."""
     import math
 
-    from mcdenoise.stats import geometric_mean
+    from mcdenoise.geomean import geometric_mean
 
     ids = list(scenes) if scenes is not None else [s.id for s in result.scenes]
     by = {(r["scene"], int(r["spp"]), r["method"]): r for r in result.records}

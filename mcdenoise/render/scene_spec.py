@@ -5,7 +5,7 @@ effects**; the renderer simulates (and pays for) only those (see :mod:`mcdenoise
 Specs are plain data: this module parses and validates them (:func:`parse_spec`,
 :func:`load_spec`), finds the spec files of folders (:func:`collect_specs`) and knows nothing
 of Mitsuba; the typed result (:class:`SceneSpec` and its pieces) is defined in
-:mod:`mcdenoise.render.spec_types` and re-exported here.
+:mod:`mcdenoise.render.scene_spec_types` and re-exported here.
 
 Schema (every length in scene units, every angle in degrees, colours linear RGB)::
 
@@ -109,7 +109,7 @@ effects and its content agree is checked by :func:`mcdenoise.render.effects.plan
 
 Animation (``[animation]`` and ``objects[i].motion``) describes a sequence as a function of
 the sequence time ``s`` in [0, 1] (first to last frame); the frame count comes from the
-renderer (``mcdenoise render --frames N``), and :mod:`mcdenoise.render.sequences` samples the
+renderer (``mcdenoise render --frames N``), and :mod:`mcdenoise.render.animation` samples the
 path at ``s = f / (N - 1)``. A still image (no ``--frames``) ignores it. A thin-lens camera's
 focus keeps its offset from the target (``focus_distance - |target - origin|``) along the path.
 
@@ -127,7 +127,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mcdenoise.render.spec_types import (
+from mcdenoise.render.scene_spec_types import (
     CAMERA_PATHS,
     EFFECTS,
     LIGHTS,

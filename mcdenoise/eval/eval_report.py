@@ -33,7 +33,7 @@ import numpy as np
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import METRICS, PARTS, flip_status, relmse_map
 from mcdenoise.eval.results import ROLE_NOISY, EvalRecord, EvalResult, ScenePreview, encode_float
-from mcdenoise.eval.temporal import metric_spec
+from mcdenoise.eval.temporal_metrics import metric_spec
 from mcdenoise.eval.tonemap import colorbar, display, false_color, to_uint8
 from mcdenoise.io.atomic import atomic_path, sweep_stale_temporaries, write_text_atomic
 
@@ -281,7 +281,7 @@ def _best(
 
 def result_metric_names() -> set[str]:
     """Every registered metric name, still and temporal."""
-    from mcdenoise.eval.temporal import TEMPORAL_METRICS
+    from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS
 
     return {*METRICS, *TEMPORAL_METRICS}
 

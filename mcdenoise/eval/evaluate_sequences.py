@@ -4,7 +4,7 @@
 reference is a folder of ``frame_0000.exr``, ``frame_0001.exr``, ... (the layout of
 ``mcdenoise render --frames``: ``DIR/<id>/ref/``): every output is a folder of frames
 (``mcdenoise denoise SEQ_DIR -o OUT``), matched to the reference frames by name, and evaluated
-as one sequence with per-frame and temporal metrics (:mod:`mcdenoise.eval.temporal`), the
+as one sequence with per-frame and temporal metrics (:mod:`mcdenoise.eval.temporal_metrics`), the
 warm-up frames reported apart. :func:`evaluate_sequence_arrays` is its in-memory counterpart.
 File matching, header probing and the scene check are shared with
 :mod:`mcdenoise.eval.evaluate`.
@@ -53,7 +53,7 @@ from mcdenoise.eval.results import (
     ScenePreview,
     SequenceDetail,
 )
-from mcdenoise.eval.temporal import (
+from mcdenoise.eval.temporal_metrics import (
     WARMUP_FRAMES,
     SequenceEvaluator,
     resolve_sequence_metrics,
@@ -237,7 +237,7 @@ def evaluate_sequence_arrays(
     Raises:
         InputError: frame counts or sizes differ, or a metric name is unknown.
     """
-    from mcdenoise.eval.temporal import _frames
+    from mcdenoise.eval.temporal_metrics import _frames
 
     warmup = _check_warmup(warmup)
     result = _sequence_result(metrics, warmup)
@@ -316,7 +316,7 @@ def evaluate_sequences(
     ``frame_0003.exr`` and ``frame_0003_nlm.exr`` both show ``frame_0003``), and the frames of
     one folder with one suffix are one sequence, which must cover every reference frame.
     Per sequence: the per-frame metrics, the temporal ones and their means with the first
-    ``warmup`` frames apart (:class:`~mcdenoise.eval.temporal.SequenceEvaluator`). The noisy
+    ``warmup`` frames apart (:class:`~mcdenoise.eval.temporal_metrics.SequenceEvaluator`). The noisy
     frames an output was made from (``mcdenoise:source``, its part and profile) are evaluated
     as a ``"noisy"`` sequence, or, where no output records its source, the ``inputs``
     folder of frames that covers the sequence. An output frame whose source records another

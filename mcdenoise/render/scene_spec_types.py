@@ -1,9 +1,9 @@
-"""The typed scene spec: the dataclasses :func:`mcdenoise.render.spec.parse_spec` returns.
+"""The typed scene spec: the dataclasses :func:`mcdenoise.render.scene_spec.parse_spec` returns.
 
 Plain frozen data, no Mitsuba: :class:`SceneSpec` and its pieces (camera, objects,
 materials, textures, lights, animation), the names the schema accepts (:data:`EFFECTS`,
 :data:`SHAPES`, ...), and :meth:`SceneSpec.to_dict`, which writes a spec back in the schema
-users write (the schema itself: :mod:`mcdenoise.render.spec`).
+users write (the schema itself: :mod:`mcdenoise.render.scene_spec`).
 """
 
 from __future__ import annotations
