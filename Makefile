@@ -77,7 +77,7 @@ bench: install
 DEMO_OUT ?= demo-out
 demo: install
 	@echo "demo: experiment data/experiments/demo.toml -> report: $(DEMO_OUT)/report.html"
-	$(BIN)/mcdenoise eval --experiment data/experiments/demo.toml -o $(DEMO_OUT)
+	$(BIN)/mcdenoise experiment data/experiments/demo.toml -o $(DEMO_OUT)
 
 # Re-render the shipped sample data (needs the 'render' extra: Mitsuba 3): the scene specs
 # data/scenes/samples/*.toml through mcdenoise render into $(SAMPLES_WORK) (an ordinary render

@@ -89,7 +89,8 @@ def _old_match(stem: str, candidates: list[str]) -> str | None:
 
 
 def bench(n: int, recorded: bool, cli: bool) -> None:
-    from mcdenoise.eval.evaluate import PrefixMatcher, plan_files
+    from mcdenoise.eval.evaluate import plan_files
+    from mcdenoise.eval.matching import PrefixMatcher
 
     with tempfile.TemporaryDirectory() as tmp:
         ref, out = make_set(Path(tmp), n, recorded)

@@ -23,7 +23,7 @@ writes everything as JSON. The exit status is 0 whatever the counts (this is a b
 not a test); 2 when an input cannot be read.
 
 ``--run SPEC -o DIR`` first runs the experiment (``demo`` names data/experiments/demo.toml)
-with one torch thread, as ``mcdenoise eval --experiment SPEC -o DIR --threads 1`` does.
+with one torch thread, as ``mcdenoise experiment SPEC -o DIR --threads 1`` does.
 ``--renders SRC`` copies the render folder of an earlier experiment (``SRC/data``) into
 ``DIR/data`` first and uses it as the experiment's ``[scenes] folder``, so a re-measure after
 a code change re-denoises every unit but renders nothing. ``DIR`` must be new: the runner

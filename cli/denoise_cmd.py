@@ -129,9 +129,9 @@ def denoise(
     Nothing is written when an output would replace one of the inputs (e.g. -o naming the
     input folder, which holds a.exr and a_nlm.exr): one line says which.
     """
-    from mcdenoise.batch import OptionError, denoise_paths
-    from mcdenoise.denoise_files import ReadOptions, WriteOptions
-    from mcdenoise.method import params_from_strings
+    from mcdenoise.batch import OptionError, denoise_paths  # lazy: start-up of the CLI
+    from mcdenoise.denoise_files import ReadOptions, WriteOptions  # lazy: start-up of the CLI
+    from mcdenoise.method import params_from_strings  # lazy: start-up of the CLI
 
     read = ReadOptions(
         profile=profile, mapping=mapping, part=part, spp=spp, include_outputs=include_outputs
@@ -166,7 +166,7 @@ def denoise(
 @click.command("methods")
 def methods_cmd():
     """List the denoising methods, what they need, and whether they can run here."""
-    from mcdenoise.registry import method_aliases, methods
+    from mcdenoise.registry import method_aliases, methods  # lazy: start-up of the CLI
 
     best = None
     aliases = method_aliases()

@@ -1,36 +1,17 @@
-"""``mcdenoise eval``: compare outputs with references, or run an experiment (``--experiment``)."""
+"""``mcdenoise eval``: compare outputs with references (or, without one, estimate their error).
+
+``eval --experiment SPEC`` is an alias of ``mcdenoise experiment SPEC``
+(:mod:`mcdenoise_cli.experiment_cmd`), kept because scripts call it.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import click
-from mcdenoise_cli.options import threads_option
-
-
-def metrics_help() -> str:
-    """The ``--metrics`` help, from the registered metrics (:data:`mcdenoise.eval.metrics.METRICS`)."""
-    from mcdenoise.eval.metrics import METRICS, PARTS
-    from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS
-
-    names = ",".join(n for n, m in METRICS.items() if m.part_of is None)
-    parts = "".join(f"; {k} also gives {','.join(v)}" for k, v in PARTS.items())
-    optional = ",".join(n for n, m in METRICS.items() if m.optional)
-    extra = f"; {optional} only when its package is installed" if optional else ""
-    temporal = ",".join(TEMPORAL_METRICS)
-    return (
-        f"Comma-separated metrics (default: all: {names}{parts}{extra}; sequences also "
-        f"{temporal}; with --experiment: the spec's)."
-    )
-
-
-class _MetricsOption(click.Option):
-    """``--metrics``, whose help lists the registered metrics: built when the help is shown,
-    so the command starts without loading the metrics (and torch)."""
-
-    def get_help_record(self, ctx: click.Context):
-        self.help = metrics_help()
-        return super().get_help_record(ctx)
+from mcdenoise_cli.experiment_cmd import run_experiment_command
+from mcdenoise_cli.options import MetricsOption, threads_option
 
 
 @click.command("eval")
@@ -65,16 +46,15 @@ class _MetricsOption(click.Option):
     help="Folder for report.html, results.json and results.csv (with --experiment: also the "
     "rendered data, denoised outputs and the resumable work records).",
 )
-@click.option("--metrics", cls=_MetricsOption, default=None, metavar="LIST")
+@click.option("--metrics", cls=MetricsOption, default=None, metavar="LIST")
 @click.option(
     "--experiment",
     "experiment",
     default=None,
     type=click.Path(dir_okay=False),
     metavar="SPEC",
-    help="Run the experiment SPEC (TOML, e.g. data/experiments/demo.toml): render what is "
-    "missing, run every method on every spp level, time render and denoise, and write an "
-    "accuracy-vs-time report into -o. Re-running resumes.",
+    help="Alias of `mcdenoise experiment SPEC`: run the experiment SPEC (TOML) and write its "
+    "accuracy-vs-time report into -o (with --shard, --merge, --allow-commands as there).",
 )
 @click.option(
     "--progress/--no-progress",
@@ -93,20 +73,17 @@ class _MetricsOption(click.Option):
     "--shard",
     default=None,
     metavar="I/N",
-    help="With --experiment: run only share I of N of the (scene, spp, method) units (a "
-    "cluster job array spreads one experiment over N machines sharing -o); no report.",
+    help="With --experiment: see `mcdenoise experiment --help`.",
 )
 @click.option(
     "--merge",
     is_flag=True,
-    help="With --experiment: run nothing; build the report from every shard's finished "
-    "units (an error names the shards that have not finished).",
+    help="With --experiment: see `mcdenoise experiment --help`.",
 )
 @click.option(
     "--allow-commands",
     is_flag=True,
-    help="With --experiment: let the spec run the external programs it names ([[external]], "
-    "'cmd:...' methods); a spec that names any is refused without it, listing them.",
+    help="With --experiment: see `mcdenoise experiment --help`.",
 )
 @click.option(
     "--force",
@@ -152,62 +129,56 @@ def eval_cmd(
     reported apart; a per-frame table; frames.csv in -o.
 
     \b
-    With --experiment SPEC (no OUTPUTS, no --ref): run the experiment and write
-    report.html, results.json and results.csv into -o DIR. --shard I/N runs share I of N
-    (e.g. I = $SLURM_ARRAY_TASK_ID), --merge then writes the one report. A spec that names
-    external programs ([[external]], 'cmd:...') runs them only with --allow-commands.
+    --experiment SPEC is an alias of `mcdenoise experiment SPEC` (no OUTPUTS, no --ref).
     """
-    from mcdenoise.denoise_files import check_output_folder
-
-    check_output_folder(out_dir, "-o")
-    mode = "auto" if progress is None else ("bar" if progress else "off")
-    names = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
-    if experiment is None and (shard is not None or merge):
-        raise click.UsageError("--shard and --merge apply to --experiment SPEC")
-    if experiment is None and allow_commands:
-        raise click.UsageError("--allow-commands applies to --experiment SPEC")
+    experiment_only = {"--shard": shard is not None, "--merge": merge}
+    experiment_only["--allow-commands"] = allow_commands
+    eval_only = {"OUTPUTS": bool(outputs), "--ref": reference is not None, "--input": bool(inputs)}
+    eval_only |= {"--force": force, "--keep-going": keep_going, "--warmup": warmup is not None}
+    wrong = [k for k, v in (eval_only if experiment else experiment_only).items() if v]
+    if wrong:
+        raise click.UsageError(
+            f"--experiment (`mcdenoise experiment SPEC`) takes none of {', '.join(wrong)}"
+            if experiment
+            else f"{' and '.join(wrong)} appl{'ies' if len(wrong) == 1 else 'y'} to "
+            "--experiment SPEC (`mcdenoise experiment`)"
+        )
     if experiment is not None:
-        if shard is not None and merge:
-            raise click.UsageError("--shard runs one share, --merge builds the report: not both")
-        if outputs or reference is not None or inputs:
-            raise click.UsageError("--experiment takes no OUTPUTS, --ref or --input")
-        if force:
-            raise click.UsageError("--force applies to --ref, not to --experiment")
-        if keep_going:
-            raise click.UsageError("--keep-going applies to --ref, not to --experiment")
-        if warmup is not None:
-            raise click.UsageError("--warmup applies to --ref sequences, not to --experiment")
-        _experiment(
+        run_experiment_command(
             experiment,
             out_dir,
-            names,
-            mode,
-            threads,
+            metrics=metrics,
+            progress=progress,
+            threads=threads,
             shard=shard,
             merge=merge,
             allow_commands=allow_commands,
         )
         return
+    from mcdenoise.denoise_files import check_output_folder  # lazy: start-up of the CLI
+
+    check_output_folder(out_dir, "-o")
+    mode = "auto" if progress is None else ("bar" if progress else "off")
+    names = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
     if not outputs:
         raise click.UsageError("Missing argument 'OUTPUTS...' (or give --experiment SPEC).")
     if reference is None:
         _estimated(outputs, out_dir)
         return
 
-    from mcdenoise.eval import evaluate, write_report
-    from mcdenoise.eval.temporal_metrics import WARMUP_FRAMES
+    from mcdenoise.eval import EvalOptions, evaluate, write_report  # lazy: start-up of the CLI
 
-    result = evaluate(
-        reference,
-        list(outputs),
-        inputs=list(inputs) or None,
+    options = EvalOptions(
+        inputs=list(inputs),
         metrics=names,
         # seconds of work: a bar on a terminal, no lines in a log
         progress=(sys.stderr.isatty() if mode == "auto" else mode),
         force=force,
         warn=lambda message: click.echo(f"mcdenoise: warning: {message}", err=True),
-        warmup=WARMUP_FRAMES if warmup is None else warmup,
     )
+    if warmup is not None:
+        options = dataclasses.replace(options, warmup=warmup)
+    result = evaluate(reference, list(outputs), options)
     paths = write_report(result, out_dir)
     click.echo(result.format_table())
     if result.has_sequences:
@@ -222,7 +193,7 @@ def eval_cmd(
 def _fail_on_failed_rows(result, keep_going):
     """Exit with 1 (one line on stderr) when a row FAILED, unless --keep-going: a script must
     not take a report whose rows have no metrics for a successful evaluation."""
-    from mcdenoise.errors import McdenoiseError
+    from mcdenoise.errors import McdenoiseError  # lazy: start-up of the CLI
 
     failed = [r for r in result.records if r.failed]
     if failed and not keep_going:
@@ -238,8 +209,12 @@ def _estimated(outputs, out_dir):
     (mcdenoise.eval.estimate): with several outputs of one input, all normalised by the median
     of those outputs (each method runs again on the halves); one output alone keeps what
     `denoise --estimate-error` recorded. Printed and written as a report in -o."""
-    from mcdenoise.denoise import denoise
-    from mcdenoise.eval.estimate import estimate_files, format_estimates, write_estimate_report
+    from mcdenoise.denoise import denoise  # lazy: start-up of the CLI
+    from mcdenoise.eval.estimate import (  # lazy: start-up of the CLI
+        estimate_files,
+        format_estimates,
+        write_estimate_report,
+    )
 
     rows = estimate_files(
         list(outputs),
@@ -255,37 +230,3 @@ def _estimated(outputs, out_dir):
     if out_dir is not None:
         for kind, path in write_estimate_report(rows, out_dir).items():
             click.echo(f"{kind}: {path}")
-
-
-def _experiment(
-    spec_path,
-    out_dir,
-    metrics,
-    progress,
-    threads=None,
-    *,
-    shard=None,
-    merge=False,
-    allow_commands=False,
-):
-    from mcdenoise_cli.parsing import parse_shard
-
-    from mcdenoise.experiments import load_experiment, run_experiment
-
-    summary = run_experiment(
-        _with_threads(load_experiment(spec_path, allow_commands=allow_commands), threads),
-        out_dir,
-        progress=progress,
-        metrics=metrics,
-        shard=None if shard is None else parse_shard(shard),
-        merge=merge,
-    )
-    for line, to_stderr in summary.messages():  # results on stdout, notes on stderr
-        click.echo(line, err=to_stderr)
-
-
-def _with_threads(spec, threads):
-    """An explicit ``--threads N`` overrides the spec's ``threads``."""
-    import dataclasses
-
-    return spec if threads is None else dataclasses.replace(spec, threads=threads)

@@ -14,7 +14,7 @@ from mcdenoise_cli.options import read_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def info(files, profile, mapping, part, spp, as_json):
     """Describe EXR FILES: detected profile, buffers found and missing, NaN/Inf counts."""
-    from mcdenoise.io import describe
+    from mcdenoise.io import describe  # lazy: start-up of the CLI
 
     records = []
     for i, path in enumerate(files):

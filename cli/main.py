@@ -35,7 +35,7 @@ class _Group(click.Group):
     """A click group that turns library errors into one-line messages."""
 
     def invoke(self, ctx: click.Context):  # type: ignore[override]
-        from mcdenoise.errors import McdenoiseError
+        from mcdenoise.errors import McdenoiseError  # lazy: start-up of the CLI
 
         debug = os.environ.get("MCDENOISE_DEBUG", "") not in ("", "0")
         try:
@@ -78,7 +78,7 @@ def _log_to_stderr() -> None:
 
 
 def _one_line(err: BaseException) -> str:
-    from mcdenoise.errors import McdenoiseError
+    from mcdenoise.errors import McdenoiseError  # lazy: start-up of the CLI
 
     if isinstance(err, OSError) and not isinstance(err, McdenoiseError) and err.strerror:
         # "[Errno 2] No such file or directory: 'x'" -> "No such file or directory: x"
@@ -97,17 +97,26 @@ def main() -> None:
       mcdenoise info noisy.exr                    what the file holds
       mcdenoise denoise noisy.exr -o out.exr      best available method
       mcdenoise eval --ref ref.exr out.exr -o report/
+      mcdenoise experiment data/experiments/demo.toml -o demo-out
     """
     _log_to_stderr()
 
 
 def _register() -> None:
-    from mcdenoise_cli import denoise_cmd, eval_cmd, info_cmd, render_cmd, train_cmd
+    from mcdenoise_cli import (  # lazy: start-up of the CLI
+        denoise_cmd,
+        eval_cmd,
+        experiment_cmd,
+        info_cmd,
+        render_cmd,
+        train_cmd,
+    )
 
     main.add_command(denoise_cmd.denoise)
     main.add_command(denoise_cmd.methods_cmd)
     main.add_command(info_cmd.info)
     main.add_command(eval_cmd.eval_cmd)
+    main.add_command(experiment_cmd.experiment_cmd)
     main.add_command(render_cmd.render)
     main.add_command(train_cmd.train)
 

@@ -20,7 +20,11 @@ class _Profile(click.ParamType):
         text = str(value).strip()
         if text.lower() == "auto":
             return "auto"
-        from mcdenoise.io.profiles import PROFILE_NAMES, ProfileError, get_profile
+        from mcdenoise.io.profiles import (
+            PROFILE_NAMES,
+            ProfileError,
+            get_profile,
+        )  # lazy: start-up of the CLI
 
         try:
             get_profile(text)
@@ -97,7 +101,11 @@ def threads_option(*, render: bool = False, expose: bool = False):
     """
 
     def apply(ctx: click.Context, param: click.Parameter, value: int | None) -> int | None:
-        from mcdenoise.threads import apply_threads, choose_threads, set_render_threads
+        from mcdenoise.threads import (
+            apply_threads,
+            choose_threads,
+            set_render_threads,
+        )  # lazy: start-up of the CLI
 
         choice = choose_threads(value)
         apply_threads(choice)
@@ -118,3 +126,28 @@ def threads_option(*, render: bool = False, expose: bool = False):
         "physical cores not busy with other processes at start (at least 1); waiting OpenMP "
         "threads spin only briefly (GOMP_SPINCOUNT=10000 unless set).",
     )
+
+
+def metrics_help() -> str:
+    """The ``--metrics`` help, from the registered metrics (:data:`mcdenoise.eval.metrics.METRICS`)."""
+    from mcdenoise.eval.metrics import METRICS, PARTS  # lazy: start-up of the CLI
+    from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS  # lazy: start-up of the CLI
+
+    names = ",".join(n for n, m in METRICS.items() if m.part_of is None)
+    parts = "".join(f"; {k} also gives {','.join(v)}" for k, v in PARTS.items())
+    optional = ",".join(n for n, m in METRICS.items() if m.optional)
+    extra = f"; {optional} only when its package is installed" if optional else ""
+    temporal = ",".join(TEMPORAL_METRICS)
+    return (
+        f"Comma-separated metrics (default: all: {names}{parts}{extra}; sequences also "
+        f"{temporal}; with --experiment: the spec's)."
+    )
+
+
+class MetricsOption(click.Option):
+    """``--metrics``, whose help lists the registered metrics: built when the help is shown,
+    so the command starts without loading the metrics (and torch)."""
+
+    def get_help_record(self, ctx: click.Context):
+        self.help = metrics_help()
+        return super().get_help_record(ctx)

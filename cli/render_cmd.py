@@ -133,11 +133,11 @@ def render(
     scene the folder OUT/<id>/ holds frame_0000.exr ... (the same buffers plus `motion`) and
     ref/frame_0000.exr ...; sequences are sharded whole and resumed frame by frame.
     """
-    from mcdenoise_cli.parsing import parse_res, parse_shard, parse_spp
+    from mcdenoise_cli.parsing import parse_res, parse_shard, parse_spp  # lazy: start-up of the CLI
 
-    from mcdenoise.denoise_files import check_output_folder
-    from mcdenoise.render.config import RenderConfig
-    from mcdenoise.render.generate import render_dataset
+    from mcdenoise.denoise_files import check_output_folder  # lazy: start-up of the CLI
+    from mcdenoise.render.config import RenderConfig  # lazy: start-up of the CLI
+    from mcdenoise.render.generate import render_dataset  # lazy: start-up of the CLI
 
     check_output_folder(out, "-o")
     if layout == "oidn" and frames is not None:
@@ -173,7 +173,7 @@ def render(
     if samples_out is not None:
         click.echo(f"samples layout: {len(result.exported)} file(s) in {samples_out}")
     if layout == "oidn":
-        from mcdenoise.io.oidn_layout import write_oidn_layout
+        from mcdenoise.io.oidn_layout import write_oidn_layout  # lazy: start-up of the CLI
 
         written = write_oidn_layout(config.out, config.out / "oidn")
         click.echo(f"oidn layout: {len(written)} file(s) in {config.out / 'oidn'}")

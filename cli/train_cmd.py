@@ -116,12 +116,12 @@ def train(
     quiet,
 ):
     """Train a model on rendered data; the run folder can be resumed and used with --model."""
-    from mcdenoise.denoise_files import check_output_folder
-    from mcdenoise.method import params_from_strings
-    from mcdenoise.train.trainers import train_model
+    from mcdenoise.denoise_files import check_output_folder  # lazy: start-up of the CLI
+    from mcdenoise.method import params_from_strings  # lazy: start-up of the CLI
+    from mcdenoise.train.trainers import train_model  # lazy: start-up of the CLI
 
     if pack is not None:
-        from mcdenoise.train.trainers import pack_data
+        from mcdenoise.train.trainers import pack_data  # lazy: start-up of the CLI
 
         summary = pack_data(
             pack,
@@ -163,7 +163,7 @@ def train(
 def _check_data(value):
     """``--data``: a folder, or a pack (``*.npz``); another existing file is refused, as a
     folder-only option refuses it."""
-    from pathlib import Path
+    from pathlib import Path  # lazy: start-up of the CLI
 
     if value is not None and Path(value).is_file() and not value.lower().endswith(".npz"):
         raise click.BadParameter(f"Directory {value!r} is a file.", param_hint="'--data'")

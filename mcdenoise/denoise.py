@@ -4,7 +4,7 @@
 is its one-frame case. Files are read and written around it by :mod:`mcdenoise.output`
 (:func:`~mcdenoise.output.denoise_file`), and ``mcdenoise denoise``'s batches of files and
 sequences are :mod:`mcdenoise.batch`.
-``mcdenoise denoise``, ``mcdenoise eval --experiment`` and the
+``mcdenoise denoise``, ``mcdenoise experiment`` and the
 experiment runner all come through here, so a method registered in :mod:`mcdenoise.registry`
 (see :mod:`mcdenoise.method` for what a method is: per-frame or temporal) is available
 everywhere, with the same input sanitising, checks, timing and output repair.

@@ -1,6 +1,6 @@
 """Progress of long stages: a tqdm bar on a terminal, a few plain lines in a log.
 
-Every long loop of the library (render, denoise, train, ``eval --experiment``) reports
+Every long loop of the library (render, denoise, train, ``mcdenoise experiment``) reports
 through :func:`progress_bar`, the one place that decides how progress looks:
 
 * ``progress=True`` (the default of the commands) and stderr a terminal: a tqdm bar on

@@ -15,18 +15,22 @@ Modules: :mod:`~mcdenoise.eval.metrics` (relMSE, SMAPE, MSE, PSNR, SSIM, FLIP an
 registry), :mod:`~mcdenoise.eval.temporal_metrics` (temporal relMSE, Noisebase's tPSNR and tRMAE,
 per-frame metrics of a sequence), :mod:`~mcdenoise.eval.tonemap` (sRGB, exposure, false colour),
 :mod:`~mcdenoise.eval.preview` (crop choice), :mod:`~mcdenoise.eval.results` (records and
-their JSON form), :mod:`~mcdenoise.eval.run` (the entry points), :mod:`~mcdenoise.eval.evaluate`
-(files and arrays -> records), :mod:`~mcdenoise.eval.evaluate_sequences` (folders of frames ->
-records), :mod:`~mcdenoise.eval.eval_report` (records -> files).
+their JSON form), :mod:`~mcdenoise.eval.run` (the entry points), :mod:`~mcdenoise.eval.steps`
+(the options and the steps stills and sequences share), :mod:`~mcdenoise.eval.matching`
+(outputs -> references and noisy inputs, from names and headers),
+:mod:`~mcdenoise.eval.evaluate` (files and arrays -> records),
+:mod:`~mcdenoise.eval.evaluate_sequences` (folders of frames -> records),
+:mod:`~mcdenoise.eval.eval_report` (records -> files).
 """
 
 from mcdenoise.eval.eval_report import write_report
-from mcdenoise.eval.evaluate import evaluate_arrays, evaluate_files, match_prefix
+from mcdenoise.eval.evaluate import evaluate_arrays, evaluate_files
 from mcdenoise.eval.evaluate_sequences import (
     evaluate_sequence_arrays,
     evaluate_sequences,
     sequence_frames,
 )
+from mcdenoise.eval.matching import match_prefix
 from mcdenoise.eval.metrics import (
     METRICS,
     Metric,
@@ -49,6 +53,7 @@ from mcdenoise.eval.results import (
     SequenceDetail,
 )
 from mcdenoise.eval.run import evaluate, run_eval
+from mcdenoise.eval.steps import EvalOptions
 from mcdenoise.eval.temporal_metrics import (
     TEMPORAL_METRICS,
     WARMUP_FRAMES,
@@ -64,6 +69,7 @@ __all__ = [
     "METRICS",
     "TEMPORAL_METRICS",
     "WARMUP_FRAMES",
+    "EvalOptions",
     "EvalRecord",
     "EvalResult",
     "FrameRecord",

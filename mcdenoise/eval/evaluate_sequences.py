@@ -12,7 +12,6 @@ File matching, header probing and the scene check are shared with
 
 from __future__ import annotations
 
-import datetime as _dt
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -21,26 +20,21 @@ from typing import Any
 
 import numpy as np
 
-from mcdenoise import __version__
 from mcdenoise.errors import InputError
-from mcdenoise.eval.evaluate import (
-    _FRAME_STEM,
+from mcdenoise.eval.matching import (
     ATTR_SOURCE,
+    FRAME_STEM,
+    Meta,
     PathLike,
     PrefixMatcher,
-    _as_float,
-    _as_int,
-    _key,
-    _load,
-    _Meta,
-    _preview,
-    _probe,
-    _ratio,
-    _same_file,
-    _scene_mismatch,
-    _source_path,
-    _warn,
+    as_float,
+    image_key,
+    load_color,
+    probe,
+    same_file,
     scan_exr,
+    scene_mismatch,
+    source_path,
 )
 from mcdenoise.eval.metrics import ArrayLike, as_image
 from mcdenoise.eval.preview import crop
@@ -53,12 +47,26 @@ from mcdenoise.eval.results import (
     ScenePreview,
     SequenceDetail,
 )
+from mcdenoise.eval.steps import (
+    DEFAULT_OPTIONS,
+    EvalOptions,
+    array_records,
+    check_scene,
+    fill_record,
+    new_result,
+    noisy_then_outputs,
+    scene_preview,
+    set_ratios,
+)
 from mcdenoise.eval.temporal_metrics import (
     WARMUP_FRAMES,
     SequenceEvaluator,
+    _frames,
     resolve_sequence_metrics,
 )
 from mcdenoise.io.atomic import TMP_PREFIX
+from mcdenoise.io.exr import probe_exr
+from mcdenoise.progress import progress_bar
 
 
 def sequence_frames(folder: PathLike) -> list[Path] | None:
@@ -81,7 +89,7 @@ def sequence_frames(folder: PathLike) -> list[Path] | None:
     for f in p.iterdir():
         if not f.is_file() or f.suffix.lower() != ".exr" or f.name.startswith(TMP_PREFIX):
             continue
-        m = _FRAME_STEM.match(f.stem)
+        m = FRAME_STEM.match(f.stem)
         if m is None:
             return None
         numbered.append((int(m.group(1)), f))
@@ -142,7 +150,7 @@ def _evaluate_sequence(
                 "sequence must have one size"
             )
         if t == n - 1:
-            preview = _preview(ref)
+            preview = scene_preview(ref)
         for job, ev in zip(jobs, evaluators):
             image = as_image(job.load(t), job.files[t])
             ev.feed(
@@ -162,8 +170,7 @@ def _evaluate_sequence(
     records: dict[str, EvalRecord] = {}
     for job, ev in zip(jobs, evaluators):
         summary, rec = ev.summary(), job.record
-        rec.metrics, rec.unavailable = summary.values, summary.unavailable
-        rec.failed, rec.reason, rec.bad_pixels = summary.failed, summary.reason, summary.bad_pixels
+        fill_record(rec, summary)
         rec.sequence = SequenceDetail(
             warmup=warmup,
             frames=[
@@ -190,10 +197,7 @@ def _evaluate_sequence(
             rec.seconds = float(np.mean([float(v) for v in job.seconds if v is not None]))
         records[rec.file] = rec
         result.records.append(rec)
-    for job in jobs:
-        rec = job.record
-        noisy = rec if rec.role == ROLE_NOISY else records.get(job.input_key or "")
-        rec.relmse_ratio = _ratio(rec, noisy)
+    set_ratios(jobs, records)
 
 
 def _check_warmup(warmup: int) -> int:
@@ -203,12 +207,7 @@ def _check_warmup(warmup: int) -> int:
 
 
 def _sequence_result(metrics: Sequence[str] | None, warmup: int) -> EvalResult:
-    return EvalResult(
-        metrics=resolve_sequence_metrics(metrics),
-        version=__version__,
-        created=_dt.datetime.now(_dt.UTC).astimezone().isoformat(timespec="seconds"),
-        warmup=warmup,
-    )
+    return new_result(resolve_sequence_metrics(metrics), warmup)
 
 
 def evaluate_sequence_arrays(
@@ -237,8 +236,6 @@ def evaluate_sequence_arrays(
     Raises:
         InputError: frame counts or sizes differ, or a metric name is unknown.
     """
-    from mcdenoise.eval.temporal_metrics import _frames
-
     warmup = _check_warmup(warmup)
     result = _sequence_result(metrics, warmup)
     info = info or {}
@@ -253,24 +250,13 @@ def evaluate_sequence_arrays(
         seq = _frames(frames, label)
         if len(seq) != n:
             raise InputError(f"{label} has {len(seq)} frames but the reference has {n}")
-        secs = _as_float(info.get(label, {}).get("seconds"))
+        secs = as_float(info.get(label, {}).get("seconds"))
         return _SeqJob(rec, [f"{label} {x}" for x in names], seq.__getitem__, [secs] * n, key)
 
+    records = array_records(scene, outputs, info, noisy=noisy is not None, seconds=False)
     if noisy is not None:
-        spp = _as_int(info.get("noisy", {}).get("spp"))
-        rec = EvalRecord(scene=scene, file="noisy", role=ROLE_NOISY, method="noisy", spp=spp)
-        jobs.append(job("noisy", noisy, rec, None))
-    for label, frames in outputs.items():
-        meta = dict(info.get(label, {}))
-        rec = EvalRecord(
-            scene=scene,
-            file=str(label),
-            method=str(meta.get("method", label)),
-            input="noisy" if noisy is not None else None,
-            spp=_as_int(meta.get("spp")) or _as_int(info.get("noisy", {}).get("spp")),
-            device=meta.get("device"),
-            params=None if meta.get("params") is None else str(meta.get("params")),
-        )
+        jobs.append(job("noisy", noisy, next(records), None))
+    for rec, (label, frames) in zip(records, outputs.items()):
         jobs.append(job(str(label), frames, rec, "noisy" if noisy is not None else None))
     _evaluate_sequence(
         result,
@@ -297,15 +283,7 @@ def _noisy_label(frames: Sequence[tuple[Path, str | None, str | None]]) -> str:
 
 
 def evaluate_sequences(
-    reference: PathLike,
-    outputs: Sequence[PathLike],
-    *,
-    inputs: Sequence[PathLike] | None = None,
-    metrics: Sequence[str] | None = None,
-    progress: bool | str = False,
-    force: bool = False,
-    warn: Callable[[str], None] | None = None,
-    warmup: int = WARMUP_FRAMES,
+    reference: PathLike, outputs: Sequence[PathLike], options: EvalOptions = DEFAULT_OPTIONS
 ) -> EvalResult:
     """Evaluate denoised sequences (folders of frames) against a reference sequence.
 
@@ -335,7 +313,7 @@ def evaluate_sequences(
             another scene or frame (without ``force``); an unknown metric; a bad ``warmup``.
         mcdenoise.errors.ExrError: an EXR cannot be read.
     """
-    warmup = _check_warmup(warmup)
+    warmup = _check_warmup(options.warmup)
     ref_dir = Path(reference)
     ref_frames = sequence_frames(ref_dir)
     if ref_frames is None:
@@ -343,7 +321,7 @@ def evaluate_sequences(
             f"reference {ref_dir} is not a sequence: a folder of frame_0000.exr, "
             "frame_0001.exr, ..."
         )
-    result = _sequence_result(metrics, warmup)
+    result = _sequence_result(options.metrics, warmup)
     stems = [f.stem for f in ref_frames]
     index = {stem: i for i, stem in enumerate(stems)}
     n = len(stems)
@@ -353,7 +331,7 @@ def evaluate_sequences(
     scene = scene or "sequence"
 
     # 1. output sequences: (folder, suffix) -> frame index -> header metadata
-    groups: dict[tuple[str, str], dict[int, _Meta]] = {}
+    groups: dict[tuple[str, str], dict[int, Meta]] = {}
     folder_of: dict[tuple[str, str], Path] = {}
     for arg in outputs:
         p = Path(arg)
@@ -364,7 +342,7 @@ def evaluate_sequences(
                 f"output {p} is a file, but the reference {ref_dir} is a sequence: give each "
                 "output sequence as its folder of frames"
             )
-        if _same_file(p, ref_dir):
+        if same_file(p, ref_dir):
             continue
         for f in scan_exr(p, what="output"):
             hit = frame_of(f.stem)
@@ -374,12 +352,12 @@ def evaluate_sequences(
                 )
             key = (str(p.resolve()), f.stem[len(hit) :])
             folder_of[key] = p
-            groups.setdefault(key, {})[index[hit]] = _probe(f)
+            groups.setdefault(key, {})[index[hit]] = probe(f)
     if not groups:
         raise InputError("no output to evaluate (only the reference sequence was given)")
 
     # 2. per sequence: complete, one method, its noisy frames, the scene of every frame
-    noisy_given = _noisy_sequences(inputs or (), stems, index)
+    noisy_given = _noisy_sequences(options.inputs or (), stems, index)
     ref_ids: dict[Path, dict[str, str]] = {}
     plans: list[tuple[_SeqJob, tuple[str, ...] | None]] = []
     made_by: set[str] = set()  # methods recorded in the outputs' headers
@@ -401,7 +379,7 @@ def evaluate_sequences(
                 f"the frames of {label} were made by different methods: {', '.join(methods)}"
             )
         notes: list[str] = []
-        sources = [_source_path(m) for m in metas]
+        sources = [source_path(m) for m in metas]
         src_frames: list[tuple[Path, str | None, str | None]] | None = None
         if all(src is not None for src in sources):
             src_frames = [
@@ -423,19 +401,14 @@ def evaluate_sequences(
             problem
             for i, m in enumerate(metas)
             if m.source is not None
-            and (problem := _scene_mismatch(m, ref_frames[i], ref_ids)) is not None
+            and (problem := scene_mismatch(m, ref_frames[i], ref_ids)) is not None
         ]
         if problems:
             more = f" (and {len(problems) - 1} more frames)" if len(problems) > 1 else ""
-            if not force:
-                raise InputError(
-                    f"{problems[0]}{more}; give the reference of that sequence, or --force"
-                )
-            notes.append(problems[0] + more)
-            (warn or _warn)(f"{problems[0]}{more} (evaluated anyway: --force)")
+            check_scene(problems[0] + more, options, notes, "sequence")
         nkey = None
         if src_frames is not None:
-            nkey = tuple(_key(*f) for f in src_frames)
+            nkey = tuple(image_key(*f) for f in src_frames)
             noisy_frames.setdefault(nkey, src_frames)
         made_by.update(methods)
         method = methods[0] if methods else (suffix.lstrip("_-.") or folder.name)
@@ -456,7 +429,7 @@ def evaluate_sequences(
                 _SeqJob(
                     rec,
                     [str(p) for p in paths],
-                    lambda t, paths=paths: _load(paths[t])[0],
+                    lambda t, paths=paths: load_color(paths[t])[0],
                     [m.seconds for m in metas],
                 ),
                 nkey,
@@ -475,32 +448,35 @@ def evaluate_sequences(
 
     # 4. jobs: each noisy sequence (by spp) followed by its outputs, then the rest
     jobs: list[_SeqJob] = []
-    noisy_spp = {k: _probe(*fr[0]).spp for k, fr in noisy_frames.items()}
-    for nkey in sorted(noisy_frames, key=lambda k: (noisy_spp[k] or 0, k)):
-        fr = noisy_frames[nkey]
-        label = _noisy_label(fr)
-        rec = EvalRecord(
-            scene=scene, file=label, role=ROLE_NOISY, method="noisy", spp=noisy_spp[nkey]
-        )
-        jobs.append(
-            _SeqJob(
-                rec,
-                [str(f[0]) + (f"#{f[1]}" if f[1] else "") for f in fr],
-                lambda t, fr=fr: _load(*fr[t])[0],
-                [None] * n,
+    noisy_spp = {k: probe(*fr[0]).spp for k, fr in noisy_frames.items()}
+    label = ""
+    ordered = sorted(plans, key=lambda p: p[0].record.file)
+    noisy_order = sorted(noisy_frames, key=lambda k: (noisy_spp[k] or 0, k))
+    for nkey, plan in noisy_then_outputs(noisy_order, ordered, lambda p: p[1]):
+        if plan is None:  # the noisy sequence nkey
+            assert nkey is not None
+            fr = noisy_frames[nkey]
+            label = _noisy_label(fr)
+            rec = EvalRecord(
+                scene=scene, file=label, role=ROLE_NOISY, method="noisy", spp=noisy_spp[nkey]
             )
-        )
-        for job, k in sorted(plans, key=lambda p: p[0].record.file):
-            if k == nkey:
-                job.input_key = label
-                if job.record.spp is None:
-                    job.record.spp = noisy_spp[nkey]
-                jobs.append(job)
-    jobs += [job for job, k in sorted(plans, key=lambda p: p[0].record.file) if k is None]
+            jobs.append(
+                _SeqJob(
+                    rec,
+                    [str(f[0]) + (f"#{f[1]}" if f[1] else "") for f in fr],
+                    lambda t, fr=fr: load_color(*fr[t])[0],
+                    [None] * n,
+                )
+            )
+            continue
+        job = plan[0]
+        if nkey is not None:  # made from the noisy sequence just listed
+            job.input_key = label
+            if job.record.spp is None:
+                job.record.spp = noisy_spp[nkey]
+        jobs.append(job)
 
-    from mcdenoise.progress import progress_bar
-
-    bar = progress_bar(total=n * len(jobs), desc="eval", unit="frame", progress=progress)
+    bar = progress_bar(total=n * len(jobs), desc="eval", unit="frame", progress=options.progress)
     try:
         _evaluate_sequence(
             result,
@@ -508,7 +484,7 @@ def evaluate_sequences(
             str(ref_dir),
             stems,
             [str(f) for f in ref_frames],
-            lambda t: _load(ref_frames[t])[0],
+            lambda t: load_color(ref_frames[t])[0],
             jobs,
             warmup,
             progress=bar.update,
@@ -541,7 +517,5 @@ def _noisy_sequences(
 def _first_part(path: Path) -> str | None:
     """The name of the first part of a multi-part EXR (the lowest spp level of a file written
     by ``mcdenoise render``), else ``None``."""
-    from mcdenoise.io.exr import probe_exr
-
     parts = probe_exr(path)
     return parts[0].name or None if len(parts) > 1 else None

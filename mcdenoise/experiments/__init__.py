@@ -1,4 +1,4 @@
-"""Experiments that show what accuracy costs in time: ``mcdenoise eval --experiment SPEC``.
+"""Experiments that show what accuracy costs in time: ``mcdenoise experiment SPEC``.
 
 An experiment renders a set of scenes at a ladder of sample counts (through
 :mod:`mcdenoise.render`), runs every method of the registry on every level, times render and

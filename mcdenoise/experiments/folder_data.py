@@ -123,7 +123,7 @@ def _input_levels(path: Path) -> list[Level]:
 
 
 def _inputs(root: Path, references: Path | None) -> list[SceneData]:
-    from mcdenoise.eval.evaluate import PrefixMatcher
+    from mcdenoise.eval.matching import PrefixMatcher
     from mcdenoise.io.atomic import TMP_PREFIX
 
     refdir = references if references is not None else root / "ref"

@@ -1,7 +1,7 @@
 """Run an experiment: render what is missing, denoise every input with every method, time it,
 measure it, and assemble the report.
 
-:func:`run_experiment` is what ``mcdenoise eval --experiment SPEC -o DIR`` calls:
+:func:`run_experiment` is what ``mcdenoise experiment SPEC -o DIR`` calls:
 
 1. :func:`~mcdenoise.experiments.dataset.prepare_data` renders the missing images into the
    render folder (``DIR/data`` by default; resumable, the layout of ``mcdenoise render``);
@@ -388,7 +388,7 @@ class RunSummary:
     shard_units: int = 0
 
     def messages(self) -> list[tuple[str, bool]]:
-        """The lines ``mcdenoise eval --experiment`` prints, each with ``True`` for stderr:
+        """The lines ``mcdenoise experiment`` prints, each with ``True`` for stderr:
         what ran and was reused, the report's files (stdout); the skipped methods (stderr)."""
         result = self.result
         rendered = (

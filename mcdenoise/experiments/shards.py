@@ -1,6 +1,6 @@
 """Experiments larger than one machine: shares of the units, shard records, the merge.
 
-``mcdenoise eval --experiment SPEC -o DIR --shard I/N`` runs a deterministic share of the
+``mcdenoise experiment SPEC -o DIR --shard I/N`` runs a deterministic share of the
 experiment's (scene, spp, method) units, so a cluster job array (Slurm ``--array=1-N``, or
 any scheduler that hands out an index) spreads one experiment over ``N`` machines that share
 the folder ``DIR``; ``--merge`` then builds the one report from every shard's records.

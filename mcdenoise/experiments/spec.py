@@ -1,7 +1,7 @@
 """Experiment specs: which scenes, spp ladder, reference, methods, metrics and repetitions.
 
 An experiment spec is a TOML file (``data/experiments/*.toml``) read by
-``mcdenoise eval --experiment SPEC -o DIR``. This module parses and validates it; it renders
+``mcdenoise experiment SPEC -o DIR``. This module parses and validates it; it renders
 nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
 
     name = "demo"                         # default: the file's stem
@@ -115,7 +115,7 @@ the report marks them (:func:`mcdenoise.experiments.timing.timing_clock`).
 
 A spec that runs programs (an ``[[external]]`` entry, or a ``cmd:...`` method in ``methods``,
 ``[params]`` or a ``[[sweep]]``) is code: someone else's spec could run anything. Unless
-``allow_commands`` is given (``mcdenoise eval --experiment SPEC --allow-commands``) it is
+``allow_commands`` is given (``mcdenoise experiment SPEC --allow-commands``) it is
 refused before anything is registered or run, in one line listing every command line it
 would run (:func:`~mcdenoise.experiments.commands.spec_commands`). Parsing runs no program either way: a command's
 ``--version`` is asked only when its parameters are resolved for a run

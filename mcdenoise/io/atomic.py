@@ -21,7 +21,7 @@ Temporary names carry the writer's PID and host (``.mcdenoise-tmp-<pid>@<host>~<
 A process killed outright (SIGKILL, power loss) cannot clean up; the next write into the same
 folder removes the temporaries of *this* host's processes that no longer run, and any
 temporary not modified for :data:`STALE_SECONDS`: another host's in-progress file on a shared
-folder (``eval --experiment --shard`` on a cluster) is never taken for an orphan.
+folder (``mcdenoise experiment --shard`` on a cluster) is never taken for an orphan.
 """
 
 from __future__ import annotations

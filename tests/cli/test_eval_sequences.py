@@ -12,7 +12,12 @@ import pytest
 from fast_methods import run_cli
 
 from mcdenoise.errors import InputError
-from mcdenoise.eval import evaluate_sequence_arrays, evaluate_sequences, temporal_relmse
+from mcdenoise.eval import (
+    EvalOptions,
+    evaluate_sequence_arrays,
+    evaluate_sequences,
+    temporal_relmse,
+)
 from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS
 from mcdenoise.io import exr
 from mcdenoise.io.exr import ExrPartData
@@ -172,7 +177,7 @@ def test_eval_of_sequences_writes_per_frame_and_temporal_metrics(sequence, tmp_p
 
 def test_warmup_zero_averages_every_frame(sequence, tmp_path):
     result = evaluate_sequences(
-        sequence["ref"], [tmp_path / "out_flicker"], metrics=["trelmse"], warmup=0
+        sequence["ref"], [tmp_path / "out_flicker"], EvalOptions(metrics=["trelmse"], warmup=0)
     )
     (rec,) = [r for r in result.records if r.method == "flicker"]
     assert rec.metrics["trelmse"] == pytest.approx(
@@ -275,7 +280,7 @@ def test_one_frame_sequence_reports_temporal_metrics_as_undefined(tmp_path):
 
 def test_noisy_folder_given_as_output_is_the_noisy_row(sequence, tmp_path):
     result = evaluate_sequences(
-        sequence["ref"], [sequence["seq"], tmp_path / "out_stable"], metrics=["relmse"]
+        sequence["ref"], [sequence["seq"], tmp_path / "out_stable"], EvalOptions(metrics=["relmse"])
     )
     # the noisy frames are read with the part the outputs were made from (spp4), once
     assert [r.method for r in result.records] == ["noisy", "stable"]
@@ -297,7 +302,7 @@ def test_array_sequences_and_suffixed_frames(tmp_path, sequence):
     for t, (f, s) in enumerate(zip(sequence["flicker"], sequence["stable"])):
         write_exr(both / f"frame_{t:04d}_flicker.exr", rgb(f.astype(np.float32)))
         write_exr(both / f"frame_{t:04d}_stable.exr", rgb(s.astype(np.float32)))
-    res = evaluate_sequences(sequence["ref"], [both], metrics=["trelmse"])
+    res = evaluate_sequences(sequence["ref"], [both], EvalOptions(metrics=["trelmse"]))
     assert sorted(r.method for r in res.records) == ["flicker", "stable"]
     assert not math.isnan(res.records[0].metrics["trelmse"])
 
@@ -306,7 +311,7 @@ def test_noisy_frames_from_input_folder_when_outputs_record_no_source(sequence, 
     bare = tmp_path / "bare"
     for t, img in enumerate(sequence["stable"]):
         write_exr(bare / f"frame_{t:04d}.exr", rgb(img.astype(np.float32)))
-    without = evaluate_sequences(sequence["ref"], [bare], metrics=["relmse"])
+    without = evaluate_sequences(sequence["ref"], [bare], EvalOptions(metrics=["relmse"]))
     assert [r.method for r in without.records] == ["bare"]  # the folder names the method
     r = run_cli(
         "eval",

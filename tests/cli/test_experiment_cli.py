@@ -50,7 +50,7 @@ def experiment(tmp_path_factory):
     spec = tmp / "cli.toml"
     spec.write_text(EXPERIMENT, encoding="utf-8")
     out = tmp / "out"
-    first = run("eval", "--experiment", str(spec), "-o", str(out))
+    first = run("experiment", str(spec), "-o", str(out))
     return tmp, spec, out, first
 
 
@@ -69,6 +69,7 @@ def test_experiment_prints_a_summary_and_ends_with_the_report(experiment):
 
 @pytest.mark.mitsuba
 def test_second_run_reuses_everything(experiment):
+    """The first run was ``mcdenoise experiment``; its alias ``eval --experiment`` resumes it."""
     _, spec, out, _ = experiment
     again = run("eval", "--experiment", str(spec), "-o", str(out))
     assert again.exit_code == 0, again.output + again.stderr
@@ -94,7 +95,7 @@ def test_ctrl_c_exits_130_and_a_rerun_finishes(experiment, monkeypatch):
         f'[scenes]\nfolder = "{out / "data"}"\n',
         encoding="utf-8",
     )
-    stopped = run("eval", "--experiment", str(spec), "-o", str(tmp / "stop"))
+    stopped = run("experiment", str(spec), "-o", str(tmp / "stop"))
     assert stopped.exit_code == 130 and "interrupted" in stopped.stderr
     assert not (tmp / "stop" / "results.json").exists()
     done = run("eval", "--experiment", str(spec), "-o", str(tmp / "stop"))
@@ -109,10 +110,10 @@ def test_experiment_errors_are_one_line(tmp_path: Path):
     assert "experiment spec not found" in msg
     bad = tmp_path / "bad.toml"
     bad.write_text('repetitons = 3\n[scenes]\nspecs = ["x.toml"]\n', encoding="utf-8")
-    msg = one_line_error(run("eval", "--experiment", str(bad), "-o", str(tmp_path / "o")))
+    msg = one_line_error(run("experiment", str(bad), "-o", str(tmp_path / "o")))
     assert f"{bad}: top level: unknown key(s) repetitons" in msg
     bad.write_text('[scenes]\nspecs = ["x.toml"]\n', encoding="utf-8")
-    msg = one_line_error(run("eval", "--experiment", str(bad), "-o", str(tmp_path / "o")))
+    msg = one_line_error(run("experiment", str(bad), "-o", str(tmp_path / "o")))
     assert f"{bad}: scenes.specs[0]: 'x.toml' not found" in msg
 
 
@@ -120,9 +121,24 @@ def test_usage_errors_of_both_forms(tmp_path: Path):
     spec = tmp_path / "e.toml"
     spec.write_text("", encoding="utf-8")
     r = run("eval", "--experiment", str(spec), "--ref", "r.exr", "out.exr")
-    assert r.exit_code == 2 and "--experiment takes no OUTPUTS, --ref or --input" in r.stderr
+    assert r.exit_code == 2 and "takes none of OUTPUTS, --ref" in r.stderr
     r = run("eval", str(tmp_path))
     assert r.exit_code == 2 and "Missing option '--ref'" in r.stderr
     r = run("eval", "--ref", str(tmp_path))
     assert r.exit_code == 2 and "Missing argument 'OUTPUTS...'" in r.stderr
     assert "--experiment SPEC" in run("eval", "--help").output
+    r = run("eval", "--ref", "r.exr", "out.exr", "--shard", "1/2")
+    assert r.exit_code == 2 and "--shard applies to --experiment SPEC" in r.stderr
+    r = run("experiment", str(spec))
+    assert r.exit_code == 2 and "Missing option '-o'" in r.stderr
+
+
+def test_experiment_is_its_own_verb_and_eval_experiment_its_alias():
+    """``mcdenoise experiment`` is listed and documents what ``eval --experiment`` only
+    points to (the same command: the alias re-runs and resumes the verb's run above)."""
+    top = run("--help").output
+    assert "experiment" in top
+    own = run("experiment", "--help").output
+    for option in ("--shard", "--merge", "--allow-commands", "--threads", "--metrics", "-o"):
+        assert option in own
+    assert "alias" in own and "Alias of `mcdenoise experiment SPEC`" in run("eval", "--help").output

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from fast_methods import run_cli as run
 
-from mcdenoise.eval.evaluate import same_scene
+from mcdenoise.eval.matching import same_scene
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"

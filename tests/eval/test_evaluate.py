@@ -14,7 +14,7 @@ import pytest
 from mcdenoise.errors import InputError
 from mcdenoise.eval import evaluate, match_prefix, run_eval
 from mcdenoise.eval import metrics as M
-from mcdenoise.eval.evaluate import scan_exr
+from mcdenoise.eval.matching import scan_exr
 from mcdenoise.io.atomic import TMP_PREFIX
 from mcdenoise.io.exr import write_exr
 

@@ -143,7 +143,7 @@ def test_usage_errors_are_one_line(tmp_path, spec):
     bad = run("eval", "--experiment", spec, "-o", tmp_path / "o", "--shard", "3/2")
     assert bad.exit_code != 0 and "1 <= i <= n" in bad.stderr
     alone = run("eval", "--ref", spec, "x.exr", "--merge")
-    assert alone.exit_code == 2 and "apply to --experiment" in alone.output
+    assert alone.exit_code == 2 and "--merge applies to --experiment" in alone.output
 
 
 def test_shares_are_whole_scenes_when_the_spec_renders():
