@@ -81,7 +81,7 @@ from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.io.buffer_files import read_buffers
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.models.weights import load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import source_for

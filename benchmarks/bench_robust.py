@@ -56,7 +56,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 EXPERIMENTS = REPO / "data" / "experiments"
 
-NOISY = "noisy"  # mcdenoise.experiments.spec.NOISY (not imported: reading needs no torch)
+NOISY = "noisy"  # mcdenoise.experiments.spec_fields.NOISY (not imported: reading needs no torch)
 RULES = {
     "a": "from 2 spp on, relMSE > 3x OIDN's at that level",
     "b": "noisy relMSE falls >= 1.5x from N to 2N spp, method relMSE at 2N > 1.1x its own at N",

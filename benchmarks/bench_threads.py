@@ -22,11 +22,12 @@ for every method with the default settings.
 the denoise process, extra ``mcdenoise denoise`` arguments); the table's header says which.
 
 ``--calibrate`` instead measures each method's recorded speed for
-:data:`mcdenoise.threads.RECORDED_SPEED` (one thread, ``OMP_WAIT_POLICY=PASSIVE``): in a fresh
+:attr:`mcdenoise.method.Method.recorded_speed` (one thread, ``OMP_WAIT_POLICY=PASSIVE``): in a fresh
 process per method and repetition, the first frame (128×128 sample, model loading included, as
 a command-line user waits for it) and then the sample tiled 4×4 (512×512); ``per_mp`` is the
 slope between the two, ``fixed`` the first frame's time minus its pixels' share. Prints the
-minimum over ``--repeats`` (the least disturbed run on a shared machine) as a Python mapping.
+minimum over ``--repeats`` (the least disturbed run on a shared machine), one line per method:
+the ``recorded_speed=...`` argument to paste into its declaration in ``mcdenoise/methods/``.
 ``--waits`` times that 512×512 frame idle with 1 thread and with 2 threads under three OpenMP
 wait policies (libgomp's default spin, ``GOMP_SPINCOUNT=10000``, ``PASSIVE``).
 """
@@ -79,7 +80,7 @@ def calibrate(methods: list[str], repeats: int) -> None:
     env.pop("GOMP_SPINCOUNT", None)
     print(f"# one thread; min of {repeats} fresh processes; {SAMPLE.name} and tiled 4x4")
     print(f"# load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
-    print("RECORDED_SPEED = {")
+    print("# paste each line into the method's declaration (Method.recorded_speed)")
     for m in methods:
         runs = []
         for _ in range(repeats):
@@ -97,11 +98,10 @@ def calibrate(methods: list[str], repeats: int) -> None:
         per_mp = max(0.0, (tiled - first) / ((big - small) / 1e6))
         fixed = max(0.0, first - per_mp * small / 1e6)
         print(
-            f'    "{m}": ({fixed:.3g}, {per_mp:.3g}),  # first {first:.3f} s, 512x512 '
-            f"{tiled:.3f} s",
+            f'{m}: recorded_speed={{"{m}": ({fixed:.3g}, {per_mp:.3g})}},  # first '
+            f"{first:.3f} s, 512x512 {tiled:.3f} s",
             flush=True,
         )
-    print("}")
     print(f"# load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
@@ -219,7 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--args", default="", help="extra `mcdenoise denoise` arguments")
     ap.add_argument("--load-threads", type=int, default=2, help="threads of the background load")
     ap.add_argument("--timeout", type=float, default=600.0, help="seconds per run")
-    ap.add_argument("--calibrate", action="store_true", help="measure RECORDED_SPEED instead")
+    ap.add_argument(
+        "--calibrate", action="store_true", help="measure each method's recorded_speed instead"
+    )
     ap.add_argument(
         "--waits", action="store_true", help="idle 512x512 times per thread count and wait policy"
     )

@@ -211,10 +211,10 @@ def _estimated(outputs, out_dir):
     `denoise --estimate-error` recorded. Printed and written as a report in -o."""
     from mcdenoise.denoise import denoise  # lazy: start-up of the CLI
     from mcdenoise.eval.estimate import (  # lazy: start-up of the CLI
-        estimate_files,
         format_estimates,
         write_estimate_report,
     )
+    from mcdenoise.eval.estimate_files import estimate_files  # lazy: start-up of the CLI
 
     rows = estimate_files(
         list(outputs),

@@ -31,8 +31,11 @@ from mcdenoise.denoise_files import (
     refuse_overwriting_inputs,
 )
 from mcdenoise.errors import InputError
+from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers, MissingFeatureError
+from mcdenoise.models.weights import model_method
 from mcdenoise.output import FileResult, denoise_file, write_result
+from mcdenoise.progress import progress_bar
 from mcdenoise.registry import Method, choose_method, header_method, methods, parse_methods
 
 __all__ = [
@@ -162,8 +165,6 @@ def plan_jobs(
     part = read.part if part is None else part
     files = collect_inputs(inputs, include_outputs=read.include_outputs)
     if model is not None and method == "auto":
-        from mcdenoise.models.weights import model_method
-
         # the model file says which method: one of the table, never a command
         named = model_method(model)
         if named == "auxnet":
@@ -238,7 +239,6 @@ def run_jobs(
     :func:`mcdenoise.progress.progress_bar`: a bar on a terminal, lines in a log) the images,
     or the frames when there is a sequence, are counted on stderr when there are several.
     """
-    from mcdenoise.progress import progress_bar
 
     read = read or ReadOptions()
     out = plan.output
@@ -418,7 +418,6 @@ def _run_auto(
 
 
 def _load(path: Path, read: ReadOptions) -> FeatureBuffers:
-    from mcdenoise.io import load_buffers
 
     return load_buffers(
         path, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp

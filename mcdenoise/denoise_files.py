@@ -35,7 +35,12 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.io import load_buffers, probe_exr
+from mcdenoise.io.atomic import TMP_PREFIX
 from mcdenoise.io.buffers import MissingFeatureError
+from mcdenoise.io.exr import select_part
+from mcdenoise.io.exr_layout import header_strings
+from mcdenoise.io.profiles import BLENDER_ATTR, LAYOUT_ATTR, resolve_channels
 from mcdenoise.method import Method
 
 __all__ = [
@@ -158,7 +163,6 @@ def written_by_mcdenoise(path: str | os.PathLike[str]) -> bool:
     """Whether the EXR ``path`` is an output of ``mcdenoise denoise`` (or of an experiment):
     its header has ``mcdenoise:method``. Only header bytes are read; a file whose header
     cannot be read is not an output (reading it as an input then says what is wrong)."""
-    from mcdenoise.io.exr_layout import header_strings
 
     try:
         return any("mcdenoise:method" in part for part in header_strings(path))
@@ -174,7 +178,6 @@ def collect_inputs(
     A folder's files written by this tool (:func:`written_by_mcdenoise`) are left out unless
     ``include_outputs``; files named one by one are always inputs.
     """
-    from mcdenoise.io.atomic import TMP_PREFIX
 
     files: list[Path] = []
     for p in map(Path, paths):
@@ -339,9 +342,6 @@ def frame_info(path: str | os.PathLike[str], read: ReadOptions | None = None) ->
     Raises:
         ExrError, ProfileError, MissingFeatureError: as :func:`mcdenoise.io.load_buffers`.
     """
-    from mcdenoise.io import probe_exr
-    from mcdenoise.io.exr import select_part
-    from mcdenoise.io.profiles import BLENDER_ATTR, LAYOUT_ATTR, resolve_channels
 
     read = read or ReadOptions()
     p = Path(path)
@@ -349,7 +349,6 @@ def frame_info(path: str | os.PathLike[str], read: ReadOptions | None = None) ->
     attributes: dict[str, Any] = {}
     if BLENDER_ATTR in parts[0].attributes and (len(parts) > 1 or read.part is not None):
         # a view layer may span parts, and --part may name a layer: the loader's own rules
-        from mcdenoise.io import load_buffers
 
         fb = load_buffers(
             p, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
@@ -522,7 +521,6 @@ def output_complete(
     (and ``part``): it exists, its header reads, and records that method, those parameters
     and that source. Outputs are written atomically, so a file that exists is whole; the
     header says whether it is this run's."""
-    from mcdenoise.io import probe_exr
 
     if not output.is_file():
         return False

@@ -72,8 +72,15 @@ class Method:
             variances of its guides); ``None`` when it can run, else the reason, one line.
             It looks at which buffers are present, not at their pixels. See :meth:`accepts`.
         speed_key: ``speed_key(params) -> str``: the name the method's speed is recorded
-            under (:data:`mcdenoise.threads.RECORDED_SPEED`) with these parameters, when they
+            under (:attr:`recorded_speed`) with these parameters, when they
             change its cost by far (``kalantari-xbf`` with ``select``); ``None``: its name.
+        recorded_speed: the method's speed on one idle thread, ``speed name -> (fixed
+            seconds, seconds per megapixel)`` (one frame of ``P`` megapixels is expected to
+            take ``fixed + P * per_mp``), one entry per name :attr:`speed_key` gives; what
+            :func:`mcdenoise.threads.check_speed` compares a run with (through
+            :func:`mcdenoise.registry.recorded_speed`). ``benchmarks/bench_threads.py
+            --calibrate`` prints the entries to paste; how they were measured is in
+            ``docs/results/threads.md``. Empty: the method is never warned about.
     """
 
     name: str
@@ -89,6 +96,7 @@ class Method:
     run_sequence: SequenceFn | None = None
     check_input: CheckFn | None = None
     speed_key: Callable[[Mapping[str, Any]], str] | None = None
+    recorded_speed: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     def speed_name(self, params: Mapping[str, Any]) -> str:
         """The key of this method's recorded speed with ``params`` (:attr:`speed_key`)."""

@@ -19,6 +19,7 @@ import torch
 
 from mcdenoise.denoise import DenoiseResult, denoise
 from mcdenoise.denoise_files import ReadOptions, WriteOptions, check_output_path
+from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.registry import Method
 
@@ -73,7 +74,6 @@ def denoise_file(
     attributes (:data:`SCENE_ATTRIBUTES`). ``buffers``: the input already read with ``read`` (it is
     then not read again).
     """
-    from mcdenoise.io import load_buffers
 
     read = read or ReadOptions()
     write = write or WriteOptions()
@@ -84,7 +84,10 @@ def denoise_file(
             src, profile=read.profile, mapping=read.mapping, part=read.part, spp=read.spp
         )
     if write.estimate_error:  # refuse an input without halves before any work
-        from mcdenoise.eval.estimate import estimate_record, split_halves
+        from mcdenoise.eval.estimate import (  # lazy: start-up of mcdenoise denoise
+            estimate_record,
+            split_halves,
+        )
 
         split_halves(buffers)
     result = denoise(buffers, method, params=params, device=device)
@@ -119,7 +122,6 @@ def write_result(
     spp, a frame's number); ``source_profile=False`` leaves ``mcdenoise:source_profile``
     out (experiment outputs do not record it).
     """
-    from mcdenoise.io import save_buffers
 
     out = FeatureBuffers(
         {"color": result.image},

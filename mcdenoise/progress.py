@@ -203,7 +203,7 @@ def progress_bar(
     mode = resolve_mode(progress)
     if mode == "lines":
         return LineProgress(iterable, total=total, desc=desc, unit=unit, initial=initial)
-    from tqdm import tqdm
+    from tqdm import tqdm  # lazy: start-up of mcdenoise denoise
 
     stream = _stream()
     size = _zero_size_fallback(stream)
@@ -238,6 +238,6 @@ def _zero_size_fallback(stream: IO[str]) -> tuple[int | None, int | None]:
 
 def write_line(text: str) -> None:
     """One message line on stderr that does not break a running bar (``tqdm.write``)."""
-    from tqdm import tqdm
+    from tqdm import tqdm  # lazy: start-up of mcdenoise denoise
 
     tqdm.write(text, file=_stream())

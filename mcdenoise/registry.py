@@ -80,6 +80,7 @@ __all__ = [
     "methods",
     "params_from_strings",
     "parse_methods",
+    "recorded_speed",
     "register",
 ]
 
@@ -107,7 +108,7 @@ def _ensure_builtins() -> None:
         return
     _builtins["state"] = "loading"
     try:
-        from mcdenoise.methods import builtin_methods
+        from mcdenoise.methods import builtin_methods  # lazy: optional, see except
 
         builtin = builtin_methods()
         for method, aliases in builtin:
@@ -210,6 +211,18 @@ def methods() -> list[Method]:
     return sorted(_REGISTRY.values(), key=lambda m: (-m.priority, m.name))
 
 
+def recorded_speed(speed_name: str) -> tuple[float, float] | None:
+    """The recorded one-thread speed ``(fixed seconds, seconds per megapixel)`` under
+    ``speed_name`` (:meth:`Method.speed_name`), from the declaration of the registered method
+    that records it (:attr:`Method.recorded_speed`); ``None`` when none does."""
+    _ensure_builtins()
+    for method in _REGISTRY.values():
+        speed = method.recorded_speed.get(speed_name)
+        if speed is not None:
+            return speed
+    return None
+
+
 def get_method(name: str) -> Method:
     """The method called ``name`` (or an alias); ``InputError`` listing the known ones."""
     _ensure_builtins()
@@ -284,7 +297,8 @@ def add_command(command: str, *, name: str | None = None) -> Method:
         InputError: a bad template, or ``name`` taken by a method of the table or by another
             command.
     """
-    from mcdenoise.methods.external import command_method
+
+    from mcdenoise.methods.external import command_method  # lazy: start-up (cmd: only)
 
     _ensure_builtins()
     method = command_method(command, name=name)

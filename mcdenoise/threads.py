@@ -21,7 +21,8 @@ are in ``docs/results/threads.md``; what this module does about it:
   thread and an idle one all its cores. :func:`apply_threads` sets it (``torch.set_num_threads``;
   Mitsuba's Dr.Jit pool with :func:`set_render_threads`).
 * :func:`check_speed` compares a method's seconds with its recorded one-thread speed
-  (:data:`RECORDED_SPEED`) and logs one warning per method and process when a run is more than
+  (:attr:`~mcdenoise.method.Method.recorded_speed`, declared with each method, read through the
+  registry) and logs one warning per method and process when a run is more than
   :data:`SLOW_FACTOR` times slower, naming the likely cause.
 
 The thread count and the wait policy are recorded in every output's header
@@ -32,12 +33,12 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from collections.abc import Mapping, MutableMapping
 from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = [
-    "RECORDED_SPEED",
     "SLOW_FACTOR",
     "ThreadChoice",
     "apply_threads",
@@ -54,46 +55,10 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: How much slower than :data:`RECORDED_SPEED` a run may be before :func:`check_speed` warns.
+#: How much slower than :attr:`~mcdenoise.method.Method.recorded_speed` a run may be before :func:`check_speed` warns.
 SLOW_FACTOR = 10.0
 #: Runs shorter than this never warn (start-up noise on tiny images is not worth a message).
 MIN_WARN_SECONDS = 1.0
-
-#: Each shipped method's speed on one thread, idle, as ``(fixed seconds, seconds per
-#: megapixel)``: the expected time of one frame of ``P`` megapixels is ``fixed + P * per_mp``.
-#: Measured by ``python benchmarks/bench_threads.py --calibrate --repeats 3`` (minimum over 3
-#: fresh processes; the first frame, model loading included, as a command-line user waits for
-#: it: cornell_spp4 at 128×128, then tiled to 512×512) on 2 AMD EPYC vCPUs, torch 2.13 CPU,
-#: 2026-11-25, load average 2.6 → 1.7 from other jobs (``docs/results/threads.md``). A table
-#: in the code rather than a data file: no packaging, and a change shows in the diff.
-RECORDED_SPEED: Mapping[str, tuple[float, float]] = {
-    "nlm": (0.049, 9.24),
-    "cross-bilateral": (0.0275, 7.55),
-    "kalantari-xbf": (0.0361, 14.4),
-    "kalantari-nlm": (0.0622, 11.0),
-    # with -p select=auto|on on an input with halves: 42 filter runs (CPU time, 128² held-out
-    # cornell at 4 spp, 1 thread, load ~2, min of 2; docs/results/nfor.md)
-    "kalantari-xbf+select": (0.0361, 1806.0),
-    "kalantari-nlm+select": (0.0622, 1750.0),
-    "kpcn": (0.0189, 1.48),
-    "oidn": (0.121, 0.223),
-    # the first frame of a sequence (spatial à-trous only); 2026-11-26, load average 0.3
-    "svgf": (0.049, 5.19),
-    # CPU seconds (process_time, min of 2) of 64² and 128² frames (heldout-halves cornell 4 spp),
-    # 2026-11-26 after the kept-weights speed-up, load average 3 (docs/results/nfor.md)
-    "nfor": (0.15, 543.0),
-    # the first frame of a sequence is kpcn's computation bit for bit: kpcn's idle record
-    # (bench_threads.py --calibrate --methods kpcn-temporal,kpcn at load 11, 2026-11-26:
-    # 0.118 + 13.9 s/MP against kpcn's 0.332 + 23.6 in the same run)
-    "kpcn-temporal": (0.0189, 1.48),
-    # AO estimators: CPU time of benchmarks/bench_ao.py --speed 32/512 --repeat 3/2, 1 thread,
-    # load ~13 (bench_threads' lit sample has no camera: they refuse it)
-    "ssao": (0.011, 2.01),
-    "hbao": (0.012, 2.37),
-    "alchemy": (0.005, 1.14),
-    "gtao": (0.012, 3.31),
-    "nnao": (0.003, 3.16),  # bench_ao --speed 32/512 as the four (H7, load ~11, with its blur)
-}
 
 _ENV_POLICY = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
 
@@ -168,7 +133,6 @@ def other_running_tasks(
     """Tasks (threads) running or ready to run right now besides this one: the fourth field of
     ``/proc/loadavg`` minus 1, the least of ``samples`` readings ``interval`` seconds apart (a
     short-lived process does not count, a busy one does); ``None`` without ``/proc/loadavg``."""
-    import time
 
     seen = []
     for i in range(max(1, samples)):
@@ -224,7 +188,7 @@ def choose_threads(
 
 def apply_threads(choice: ThreadChoice | int) -> int:
     """Set torch's intra-op thread count (a global torch setting); returns it."""
-    import torch
+    import torch  # lazy: start-up without torch
 
     n = choice.threads if isinstance(choice, ThreadChoice) else int(choice)
     if torch.get_num_threads() != n:
@@ -236,7 +200,7 @@ def set_render_threads(threads: int) -> bool:
     """Set the thread count of Mitsuba's CPU backend (Dr.Jit's pool; the calling thread counts
     as one); ``False`` when Dr.Jit is not installed."""
     try:
-        import drjit
+        import drjit  # lazy: optional, see except
     except ImportError:
         return False
     drjit.set_thread_count(int(threads))
@@ -249,9 +213,12 @@ _warned: set[str] = set()  # methods already warned about in this process (one m
 
 
 def expected_seconds(method: str, pixels: int) -> float | None:
-    """The recorded one-thread idle seconds of ``method`` on a frame of ``pixels`` pixels;
-    ``None`` for a method without a record."""
-    speed = RECORDED_SPEED.get(method)
+    """The recorded one-thread idle seconds of ``method`` (a speed name,
+    :meth:`~mcdenoise.method.Method.speed_name`) on a frame of ``pixels`` pixels; ``None``
+    for a method without a record."""
+    from mcdenoise.registry import recorded_speed  # lazy: torch; this module runs before it
+
+    speed = recorded_speed(method)
     if speed is None:
         return None
     fixed, per_mp = speed
@@ -270,7 +237,7 @@ def check_speed(
     if expected is None or seconds <= SLOW_FACTOR * expected:
         return None
     if threads is None:
-        import torch
+        import torch  # lazy: start-up without torch
 
         threads = torch.get_num_threads()
     _warned.add(method)

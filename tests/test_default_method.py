@@ -28,7 +28,7 @@ from mcdenoise.denoise import denoise
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 from mcdenoise.io.buffers import MissingFeatureError
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.method import Method
 from mcdenoise.methods.kalantari import model_for
 from mcdenoise.models.weights import load_kpcn, shipped_model_path

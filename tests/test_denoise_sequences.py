@@ -29,7 +29,7 @@ from mcdenoise.denoise_files import (
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, probe_exr, save_buffers
 from mcdenoise.io.buffers import MissingFeatureError
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.method import Method
 
 ONE_THREAD = True

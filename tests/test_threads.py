@@ -16,6 +16,7 @@ import torch
 from mcdenoise import threads
 from mcdenoise.denoise import denoise
 from mcdenoise.io import load_buffers
+from mcdenoise.registry import get_method, methods, recorded_speed
 
 SAMPLES = Path(__file__).resolve().parents[1] / "data" / "samples"
 
@@ -168,7 +169,9 @@ def test_denoise_warns_once_when_the_method_is_far_slower(
     fresh_warnings, monkeypatch, caplog
 ) -> None:
     buffers = load_buffers(SAMPLES / "cornell_spp4.exr").crop(0, 0, 24, 24)
-    monkeypatch.setitem(threads.RECORDED_SPEED, "cross-bilateral", (1e-9, 1e-9))
+    monkeypatch.setitem(
+        get_method("cross-bilateral").recorded_speed, "cross-bilateral", (1e-9, 1e-9)
+    )
     caplog.set_level(logging.WARNING, logger="mcdenoise.threads")
     denoise(buffers, "cross-bilateral", device="cpu")
     denoise(buffers, "cross-bilateral", device="cpu")
@@ -178,27 +181,25 @@ def test_denoise_warns_once_when_the_method_is_far_slower(
 
 def test_denoise_at_its_recorded_speed_does_not_warn(fresh_warnings, monkeypatch, caplog) -> None:
     buffers = load_buffers(SAMPLES / "cornell_spp4.exr").crop(0, 0, 24, 24)
-    monkeypatch.setitem(threads.RECORDED_SPEED, "cross-bilateral", (1e6, 0.0))
+    monkeypatch.setitem(get_method("cross-bilateral").recorded_speed, "cross-bilateral", (1e6, 0.0))
     caplog.set_level(logging.WARNING, logger="mcdenoise.threads")
     denoise(buffers, "cross-bilateral", device="cpu")
     assert not caplog.records
 
 
 def test_every_shipped_method_has_a_recorded_speed() -> None:
-    from mcdenoise.registry import methods
-
-    assert {m.name for m in methods()} <= set(threads.RECORDED_SPEED)
+    for m in methods():
+        assert m.name in m.recorded_speed, m.name
+        assert recorded_speed(m.name) == m.recorded_speed[m.name]
 
 
 def test_a_parameter_that_multiplies_the_cost_has_its_own_recorded_speed() -> None:
     # kalantari-xbf with per-region selection runs 42 filters: judged against the model
     # alone's record it would warn "overloaded" on an idle machine.
-    from mcdenoise.registry import get_method
-
     for name in ("kalantari-xbf", "kalantari-nlm"):
         m = get_method(name)
         assert m.speed_name(m.resolve_params(None)) == name
         key = m.speed_name(m.resolve_params({"select": "auto"}))
-        assert key == f"{name}+select" and key in threads.RECORDED_SPEED
+        assert key == f"{name}+select" and key in m.recorded_speed
         assert threads.expected_seconds(key, 10**6) > 50 * threads.expected_seconds(name, 10**6)
     assert get_method("nlm").speed_name({}) == "nlm"

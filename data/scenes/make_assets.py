@@ -151,7 +151,7 @@ def studio_image(width: int = 64, height: int = 33) -> np.ndarray:
 
 
 def write_studio(path: Path) -> None:
-    from mcdenoise.io.exr import write_exr
+    from mcdenoise.io.exr_write import write_exr
 
     img = studio_image()
     path.parent.mkdir(parents=True, exist_ok=True)

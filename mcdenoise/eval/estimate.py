@@ -37,11 +37,7 @@ What the user gets, and the estimate of it
     Var B`` for any two independent unbiased halves, so :func:`squared_error` subtracts
     ``½(A − B)²`` instead, which needs no variance estimate at all (an input without
     variance buffers can be judged). Which of the two spreads less depends on the filter and
-    the tails: on the synthetic images of ``python benchmarks/bench_estimate.py synthetic``
-    the difference form halves the spread for the identity and is lower for most blurs, but
-    not for strong blurs under log-normal noise (docs/results/estimate.md); averaging both
-    estimates of the common term was never the worst there, and on held-out renders it is
-    no better either (docs/results/estimate.md).
+    the tails (``python benchmarks/bench_estimate.py synthetic`` measures both).
     For the identity (the noisy input itself) it is ``¼(A − B)²``, whose mean is ``Var x``
     exactly.
 
@@ -51,9 +47,9 @@ What the user gets, and the estimate of it
     independent, so the product's mean is ``β_A·β_B`` (the bias part) and its noise is a
     product of the halves' own noise: where both halves happen to hold a firefly at one
     pixel (a caustic sampled once in each half) it is large and positive, and nothing in
-    the two halves tells it from a real bias. Clipping the product at ±9 √(v_A v_B)
-    (winsorising) biases the estimate by 3–72 % on the synthetic images and is no better
-    on renders, so the estimate stays unbiased and such pixels stay in its noise.
+    the two halves tells it from a real bias. Clipping the product (winsorising) biases the
+    estimate and is no better on renders, so the estimate stays unbiased and such pixels
+    stay in its noise.
 
     The output most users keep is ``D`` on the full buffer, ``D(x)``, ``x = (A + B)/2``. Writing
     ``MSE = bias² + variance``: ``ê`` estimates ``β² + Var(D_A)/2`` (the bias of a half-sample
@@ -61,8 +57,7 @@ What the user gets, and the estimate of it
     change between ``spp/2`` and ``spp`` and its output variance falls as ``1/spp`` (exact for
     a linear filter of fixed weights). A filter that adapts to the noise (narrower where there
     is less) has a lower bias on ``x``, so ``ê`` tends to overestimate its ``D(x)`` error;
-    ``benchmarks/bench_estimate.py`` measures the relation on held-out renders
-    (docs/results/estimate.md).
+    ``benchmarks/bench_estimate.py`` measures the relation on held-out renders.
 
 Relative MSE
     relMSE divides by ``r² + ε`` with the reference ``r`` and the ε of the metric
@@ -80,25 +75,34 @@ Relative MSE
     heavy tails too. The per-pixel estimate may be negative (it is unbiased, not a square);
     the image value is clamped at 0. The normaliser does not touch the squared-error
     estimate, which stays unbiased; a normaliser that depends on the noise makes relMSE's
-    ratio a little biased either way, as the output itself did (measured against the truth
-    in docs/results/estimate.md).
+    ratio a little biased either way, as the output itself did.
+
+Every figure measured for these choices (spreads, winsorising, normalisers, the radius)
+is in docs/results/estimate.md.
 
 Inputs without halves cannot be judged: :func:`split_halves` raises naming what is missing.
 """
 
 from __future__ import annotations
 
+import csv
+import html
+import io
+import json
+import math
 import os
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from torch import Tensor
 
-from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.errors import InputError
 from mcdenoise.eval.results import printable
+from mcdenoise.filters.box import box_mean
 from mcdenoise.filters.two_buffer import (
     BLOCK,
     block_means,
@@ -106,11 +110,9 @@ from mcdenoise.filters.two_buffer import (
     half_error,
     squared_error,
 )
-from mcdenoise.io.buffers import FeatureBuffers, check_halves, half_inputs, has_halves
+from mcdenoise.io.atomic import write_text_atomic
+from mcdenoise.io.buffers import FeatureBuffers, check_halves, half_inputs, has_halves, sanitize
 from mcdenoise.losses import RELMSE_EPS
-
-if TYPE_CHECKING:
-    from mcdenoise.method import Method
 
 __all__ = [
     "BLOCK",
@@ -118,9 +120,7 @@ __all__ = [
     "block_means",
     "cross_error",
     "estimate_error",
-    "estimate_files",
     "estimate_from_outputs",
-    "estimate_noisy",
     "estimate_record",
     "format_estimates",
     "half_error",
@@ -163,6 +163,14 @@ def relative(squared_error: Tensor, judged: Tensor, eps: float = RELMSE_EPS) -> 
 MATCH_RADIUS = 2
 
 
+#: How relMSE estimates are normalised (:func:`matched_normaliser`), as reports name it.
+MATCHED = "5x5 mean matched to the input"
+#: The normaliser ``--estimate-error`` uses: the output, its local mean matched.
+OWN = f"own output, {MATCHED}"
+#: The normaliser of an output written before ``mcdenoise:estimate_normaliser`` existed.
+OWN_OLD = "own output"
+
+
 def matched_normaliser(image: Tensor, noisy: Tensor, radius: int = MATCH_RADIUS) -> Tensor:
     """What relMSE divides by without a reference: ``image`` (a denoised output, or the
     :func:`pseudo_reference` of several) with its local mean put back to the noisy input's,
@@ -173,15 +181,12 @@ def matched_normaliser(image: Tensor, noisy: Tensor, radius: int = MATCH_RADIUS)
     it is right, but every denoiser removes some real energy as if it were noise: a caustic
     or a small highlight that is bright in both halves (so the squared-error estimate is
     large there) comes out dark, and dividing that error by a near-zero square made two
-    pixels of ``caustics_glass`` at 64 spp 91 % of OIDN's estimate (cross-bilateral's read
-    1.6 where its true relMSE is 0.0067). The noisy input's box mean is an unbiased estimate
+    pixels of ``caustics_glass`` dominate a method's whole estimate. The noisy input's box mean is an unbiased estimate
     of the reference's box mean (Monte Carlo is unbiased), so the sum brings that energy
     back spread over the window, keeps the image's detail (``image − box(image)``) and adds
-    only the box mean's noise (``1/(2r+1)²`` of the input's variance). The radius, and the
-    forms measured beside it (3×3, one-sided, ``max(image, box(noisy))``), are in
-    docs/results/estimate.md.
+    only the box mean's noise (``1/(2r+1)²`` of the input's variance). The radius was
+    measured against other forms (3×3, one-sided, ``max(image, box(noisy))``).
     """
-    from mcdenoise.filters.box import box_mean
 
     img = image.double()
     return img + box_mean((noisy.double() - img)[None], radius)[0]
@@ -193,13 +198,12 @@ def pseudo_reference(outputs: Sequence[Tensor]) -> Tensor:
     mean).
 
     It normalises every output's relMSE estimate when several outputs of one input are
-    judged together (:func:`estimate_files`). Each denoiser is wrong somewhere else (one
-    blurs a caustic, another leaves fireflies); the median keeps, per pixel, a value between
-    the others, so (from three outputs on) one failing output does not move it, while an
-    output's own value inflates its square where its residual noise is (the noisy input's
-    fireflies: 0.4–0.6× its true error at 4–64 spp) and deflates it where it darkens. The
-    noisy input is not among the outputs: its noise would bias the square upwards. Measured
-    against the reference on held-out renders in docs/results/estimate.md.
+    judged together (:func:`mcdenoise.eval.estimate_files.estimate_files`). Each denoiser is
+    wrong somewhere else (one blurs a caustic, another leaves fireflies); the median keeps,
+    per pixel, a value between the others, so (from three outputs on) one failing output
+    does not move it, while an output's own value inflates its square where its residual
+    noise is (the noisy input's fireflies) and deflates it where it darkens. The noisy input is not among the outputs:
+    its noise would bias the square upwards.
     """
     x = torch.stack([o.double() for o in outputs])
     n = x.shape[0]
@@ -308,9 +312,6 @@ def estimate_record(denoiser: Denoiser, buffers: FeatureBuffers, output: Tensor)
     ``relmse_estimated``, ``relmse_estimated_se``, ``mse_estimated``, ``estimate_of``,
     ``estimate_normaliser`` (:func:`matched_normaliser` of the output) and
     ``estimate_seconds``."""
-    import time
-
-    from mcdenoise.io.buffers import sanitize
 
     t0 = time.perf_counter()
     half_a, half_b = split_halves(buffers)
@@ -343,203 +344,6 @@ ESTIMATE_COLUMNS = (
 )
 
 
-def estimate_noisy(
-    buffers: FeatureBuffers, pseudo_reference: Tensor | None = None
-) -> ErrorEstimate:
-    """The estimated error of the noisy input itself (the identity on each half:
-    ``¼(A − B)²`` per pixel, unbiased for the variance of ``color``), normalised by
-    ``pseudo_reference`` (e.g. the median of denoised outputs of it) or else by ``color``
-    (whose square its own noise inflates: an underestimate at low spp)."""
-    check_halves(buffers)
-    if not has_halves(buffers):
-        raise InputError(f"{buffers.source or 'input'}: no half buffers (color_a, color_b)")
-    return estimate_from_outputs(
-        buffers["color_a"], buffers["color_b"], buffers, output=pseudo_reference
-    )
-
-
-#: Runs a method again: ``(half input, the method, its recorded parameters) -> (3, H, W)``;
-#: the method is the one the output's header names, looked up with
-#: :func:`mcdenoise.registry.header_method` (never an external command).
-Rerun = Callable[[FeatureBuffers, "Method", dict[str, Any]], Tensor]
-
-
-def estimate_files(
-    outputs: Sequence[str | os.PathLike[str]],
-    *,
-    rerun: Rerun | None = None,
-    log: Callable[[str], None] | None = None,
-) -> list[dict[str, Any]]:
-    """One row per output of ``mcdenoise denoise`` (files or folders of them), and one
-    ``noisy`` row per source input that has halves (:func:`estimate_noisy`). Every row is
-    marked ``"estimated": True`` and names its ``normaliser``; nothing here is measured
-    against a reference.
-
-    Where two or more outputs of one input with halves are given, every one of them (and the
-    noisy input) is normalised by one :func:`pseudo_reference`, the pixelwise median of those
-    outputs (:func:`matched_normaliser` of it): ``rerun`` runs the method recorded in each
-    output's header (``mcdenoise:method``, ``mcdenoise:params``) again on each half of the
-    source to get the per-pixel squared error (``--estimate-error`` keeps only its scalar),
-    so this costs two runs of every method; ``log`` is told before each. (``rerun`` is
-    passed in, e.g. by ``mcdenoise eval``, so that this module does not import the denoisers.)
-    One output alone, no ``rerun``, or a method that cannot run again keeps the estimate
-    ``--estimate-error`` recorded in its header (normalised by the output itself). An output
-    without an estimate gets a row whose note says so.
-    """
-    from mcdenoise.io import load_buffers, probe_exr
-    from mcdenoise.io.buffers import sanitize
-
-    files: list[Path] = []
-    for p in map(Path, outputs):
-        files += sorted(p.glob("*.exr")) if p.is_dir() else [p]
-    rows: list[dict[str, Any]] = []
-    sources: dict[tuple[str, str | None, str | None], list[tuple[Path, dict[str, Any]]]] = {}
-    for f in files:
-        attrs = probe_exr(f)[0].attributes
-        scene = str(attrs.get("mcdenoise:image") or attrs.get("mcdenoise:scene") or f.stem)
-        row: dict[str, Any] = {
-            "scene": scene,
-            "method": str(attrs.get("mcdenoise:method", "?")),
-            "spp": attrs.get("mcdenoise:spp"),
-            "relmse_estimated": attrs.get("mcdenoise:relmse_estimated"),
-            "relmse_estimated_se": attrs.get("mcdenoise:relmse_estimated_se"),
-            "estimate_of": attrs.get("mcdenoise:estimate_of"),
-            "normaliser": str(attrs.get("mcdenoise:estimate_normaliser", OWN_OLD))
-            if attrs.get("mcdenoise:relmse_estimated") is not None
-            else "",
-            "file": str(f),
-            "note": "",
-            "estimated": True,
-        }
-        if row["relmse_estimated"] is None:
-            row["note"] = "no estimate: denoise with --estimate-error (an input with halves)"
-        rows.append(row)
-        src = attrs.get("mcdenoise:source")
-        if src:
-            part, prof = attrs.get("mcdenoise:source_part"), attrs.get("mcdenoise:source_profile")
-            key = (str(src), None if part is None else str(part), prof and str(prof))
-            sources.setdefault(key, []).append((f, {**attrs, "_row": row}))
-    for (src, part, prof), outs in sources.items():
-        try:
-            fb = load_buffers(src, part=part, profile=prof or "auto")
-        except (McdenoiseError, OSError) as err:  # a moved or unreadable source: say so
-            msg = " ".join(str(err).split())
-            rows.append({**_noisy_row(src, None), "note": f"source not read: {msg}"})
-            continue
-        if not has_halves(fb):
-            continue
-        colors = [load_buffers(o)["color"] for o, _ in outs]
-        pseudo = matched_normaliser(pseudo_reference(colors), sanitize(fb)[0]["color"])
-        shared = f"median of {len(colors)} outputs, {MATCHED}"
-        if len(colors) > 1 and rerun is not None:
-            _renormalise(fb, outs, pseudo, shared, rerun, log)
-        est = estimate_noisy(fb, pseudo)
-        rows.append(
-            {
-                **_noisy_row(src, fb),
-                "relmse_estimated": est.relmse,
-                "relmse_estimated_se": est.relmse_se,
-                "estimate_of": "noisy input",
-                "normaliser": shared if len(colors) > 1 else f"the output, {MATCHED}",
-            }
-        )
-    rows.sort(key=lambda r: (r["scene"], r["spp"] or 0, r["method"] != "noisy", r["method"]))
-    return rows
-
-
-#: How relMSE estimates are normalised (:func:`matched_normaliser`), as reports name it.
-MATCHED = "5x5 mean matched to the input"
-#: The normaliser ``--estimate-error`` uses: the output, its local mean matched.
-OWN = f"own output, {MATCHED}"
-#: The normaliser of an output written before ``mcdenoise:estimate_normaliser`` existed.
-OWN_OLD = "own output"
-
-
-def _renormalise(
-    fb: FeatureBuffers,
-    outs: Sequence[tuple[Path, dict[str, Any]]],
-    pseudo: Tensor,
-    shared: str,
-    rerun: Rerun,
-    log: Callable[[str], None] | None,
-) -> None:
-    """Each output's row of ``outs`` re-estimated with ``pseudo`` as normaliser: its method
-    (from the header) run again on each half of ``fb``; a row whose method cannot run again
-    keeps its own-normalised estimate, with a note saying why. A header naming an external
-    command or a method not installed here is refused (:func:`mcdenoise.registry.
-    header_method`: a file never makes mcdenoise run a program), told to ``log`` in one line
-    naming the file."""
-    from mcdenoise.io.buffers import sanitize
-    from mcdenoise.registry import header_method
-
-    half_a, half_b = split_halves(fb)
-    clean, _ = sanitize(fb)
-    for f, attrs in outs:
-        row = attrs["_row"]
-        if row["relmse_estimated"] is None:
-            continue
-        method = row["method"]
-        try:
-            m = header_method(method, str(f))
-        except InputError as err:
-            row["note"] = f"own normaliser: {' '.join(str(err).split())}"
-            if log is not None:
-                log(" ".join(str(err).split()))
-            continue
-        try:
-            params = _header_params(attrs.get("mcdenoise:params"))
-            if log is not None:
-                log(f"{f.name}: {method} on each half of its source (shared normaliser)")
-            out_a, out_b = rerun(half_a, m, params), rerun(half_b, m, params)
-        except (McdenoiseError, ValueError, TypeError) as err:
-            # TypeError: a header's parameter of the wrong JSON type (features = 5)
-            row["note"] = (
-                f"own normaliser: {method} did not run again: {' '.join(str(err).split())}"
-            )
-            continue
-        est = estimate_from_outputs(out_a, out_b, clean, normaliser=pseudo)
-        row.update(
-            relmse_estimated=est.relmse,
-            relmse_estimated_se=est.relmse_se,
-            normaliser=shared,
-            note=f"header value {float(row['relmse_estimated']):.4g} ({row['normaliser']})",
-        )
-
-
-def _header_params(text: Any) -> dict[str, Any]:
-    """The parameters an output's header records (``mcdenoise:params``): a JSON object, or
-    ``ValueError`` in one line (a file may come from anyone: a list, a string or JSON nested
-    past Python's recursion limit is refused, not an internal error)."""
-    import json
-
-    try:
-        params = json.loads(str(text or "{}"))
-    except RecursionError:
-        raise ValueError("header mcdenoise:params is nested too deeply") from None
-    if not isinstance(params, dict):
-        raise ValueError(
-            f"header mcdenoise:params is not a JSON object (a {type(params).__name__})"
-        )
-    return params
-
-
-def _noisy_row(src: str, fb: FeatureBuffers | None) -> dict[str, Any]:
-    attrs = fb.attributes if fb is not None else {}
-    scene = attrs.get("mcdenoise:image") or attrs.get("mcdenoise:scene") or Path(src).stem
-    return {
-        "scene": str(scene),
-        "method": "noisy",
-        "spp": fb.spp if fb is not None else None,
-        "relmse_estimated": None,
-        "relmse_estimated_se": None,
-        "estimate_of": None,
-        "normaliser": "",
-        "file": src,
-        "note": "",
-        "estimated": True,
-    }
-
-
 def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a text table, titled as estimates, each with its normaliser."""
     lines = [
@@ -568,13 +372,6 @@ def write_estimate_report(
 ) -> dict[str, Path]:
     """``estimate.json``, ``estimate.csv`` and ``estimate.html`` in ``out_dir`` (created),
     every one saying that the values are estimated without a reference."""
-    import csv
-    import html
-    import io
-    import json
-    import math
-
-    from mcdenoise.io.atomic import write_text_atomic
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

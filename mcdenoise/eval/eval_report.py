@@ -33,7 +33,7 @@ import numpy as np
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.metrics import METRICS, PARTS, flip_status, relmse_map
 from mcdenoise.eval.results import ROLE_NOISY, EvalRecord, EvalResult, ScenePreview, encode_float
-from mcdenoise.eval.temporal_metrics import metric_spec
+from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS, metric_spec
 from mcdenoise.eval.tonemap import colorbar, display, false_color, to_uint8
 from mcdenoise.io.atomic import atomic_path, sweep_stale_temporaries, write_text_atomic
 
@@ -193,7 +193,7 @@ def write_png(path: str | os.PathLike[str], rgb: np.ndarray, *, sweep: bool = Tr
     """Write display-encoded ``(3, H, W)`` values in ``[0, 1]`` as an 8-bit sRGB PNG, atomically
     (``sweep``: see :func:`~mcdenoise.io.atomic.atomic_path`; the report's images pass False,
     :func:`write_report` sweeps their folder once)."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: OpenImageIO only where an image is written
 
     pixels = to_uint8(rgb)  # (H, W, 3)
     buf = oiio.ImageBuf(pixels)
@@ -281,7 +281,6 @@ def _best(
 
 def result_metric_names() -> set[str]:
     """Every registered metric name, still and temporal."""
-    from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS
 
     return {*METRICS, *TEMPORAL_METRICS}
 

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import InputError
+from mcdenoise.eval.images import ArrayLike, as_image, check_same_shape
 from mcdenoise.eval.matching import (
     ATTR_SOURCE,
     Meta,
@@ -51,7 +52,7 @@ from mcdenoise.eval.matching import (
     scene_mismatch,
     source_path,
 )
-from mcdenoise.eval.metrics import ArrayLike, as_image, check_same_shape, compute_metrics
+from mcdenoise.eval.metrics import compute_metrics
 from mcdenoise.eval.metrics import resolve_metrics as _resolve_metrics
 from mcdenoise.eval.preview import crop
 from mcdenoise.eval.results import ROLE_NOISY, ROLE_OUTPUT, EvalRecord, EvalResult

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import InputError
+from mcdenoise.eval.images import ArrayLike, as_image
 from mcdenoise.eval.matching import (
     ATTR_SOURCE,
     FRAME_STEM,
@@ -36,7 +37,6 @@ from mcdenoise.eval.matching import (
     scene_mismatch,
     source_path,
 )
-from mcdenoise.eval.metrics import ArrayLike, as_image
 from mcdenoise.eval.preview import crop
 from mcdenoise.eval.results import (
     ROLE_NOISY,

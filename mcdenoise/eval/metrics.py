@@ -57,6 +57,7 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import InputError
+from mcdenoise.eval.images import ArrayLike, as_image, check_same_shape, nonfinite_pixels
 from mcdenoise.eval.tonemap import to_srgb
 from mcdenoise.losses import RELMSE_EPS, SMAPE_EPS  # one ε for a loss and its metric
 
@@ -74,52 +75,9 @@ SRGB_CLAMPED = "sRGB, clamped to [0, 1] (no exposure)"
 # safety factor.
 _FLIP_MIN_LUMINANCE = 4.0 * float(np.finfo(np.float32).eps)
 
-ArrayLike = Any  # numpy array or torch tensor of layout (3, H, W)
-
 
 class MetricUnavailable(Exception):
     """A metric cannot be computed for this pair of images; ``str(err)`` is the reason."""
-
-
-# --- input handling -------------------------------------------------------------------------
-
-
-def as_image(x: ArrayLike, name: str = "image") -> np.ndarray:
-    """Convert a ``(3, H, W)`` numpy array or torch tensor to a float64 numpy array.
-
-    Raises:
-        InputError: if ``x`` is not of layout ``(3, H, W)`` with ``H, W >= 1``.
-    """
-    if hasattr(x, "detach"):  # torch.Tensor, without importing torch here
-        x = x.detach().cpu().double().numpy()
-    arr = np.asarray(x, dtype=np.float64)
-    if arr.ndim != 3 or arr.shape[0] != 3 or arr.shape[1] < 1 or arr.shape[2] < 1:
-        raise InputError(
-            f"{name}: expected an RGB image of layout (3, H, W), got shape {arr.shape}"
-        )
-    return arr
-
-
-def check_same_shape(
-    output: np.ndarray,
-    reference: np.ndarray,
-    *,
-    output_name: str = "output",
-    reference_name: str = "reference",
-) -> None:
-    """Raise :class:`~mcdenoise.errors.InputError` unless both ``(C, H, W)`` shapes are equal.
-
-    The message names both images and their sizes as ``WxH``; nothing is ever broadcast.
-    """
-    if output.shape != reference.shape:
-        raise InputError(
-            f"{output_name} is {_size(output)} but reference {reference_name} is "
-            f"{_size(reference)}: sizes must match"
-        )
-
-
-def _size(a: np.ndarray) -> str:
-    return f"{a.shape[2]}x{a.shape[1]}" + (f" ({a.shape[0]} channels)" if a.shape[0] != 3 else "")
 
 
 def _pair(output: ArrayLike, reference: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
@@ -127,12 +85,6 @@ def _pair(output: ArrayLike, reference: ArrayLike) -> tuple[np.ndarray, np.ndarr
     r = as_image(reference, "reference")
     check_same_shape(x, r)
     return x, r
-
-
-def nonfinite_pixels(image: ArrayLike) -> int:
-    """Number of pixels (spatial positions) of a ``(C, H, W)`` image with any NaN/Inf channel."""
-    a = as_image(image)
-    return int((~np.isfinite(a)).any(axis=0).sum())
 
 
 # --- the metrics (private versions take validated float64 arrays) ----------------------------
@@ -200,7 +152,7 @@ def ssim_window(height: int, width: int) -> int:
 
 
 def _ssim(x: np.ndarray, r: np.ndarray) -> float:
-    from skimage.metrics import structural_similarity
+    from skimage.metrics import structural_similarity  # lazy: scikit-image is slow to import
 
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         return math.nan
@@ -220,7 +172,7 @@ def _ssim(x: np.ndarray, r: np.ndarray) -> float:
 
 def _import_flip() -> Any:
     """Import ``flip_evaluator`` (ImportError if absent)."""
-    import flip_evaluator
+    import flip_evaluator  # lazy: flip-evaluator is optional
 
     return flip_evaluator
 
@@ -593,8 +545,8 @@ def compute_metrics(
     r = as_image(reference, reference_name)
     check_same_shape(x, r, output_name=output_name, reference_name=reference_name)
     result = MetricValues(values=dict.fromkeys(keys))
-    result.bad_pixels = int((~np.isfinite(x)).any(axis=0).sum())
-    ref_bad = int((~np.isfinite(r)).any(axis=0).sum())
+    result.bad_pixels = nonfinite_pixels(x)
+    ref_bad = nonfinite_pixels(r)
     if result.bad_pixels:
         result.failed = True
         result.reason = f"{result.bad_pixels} non-finite pixel(s) (NaN/Inf) in {output_name}"

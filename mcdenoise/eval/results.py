@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from mcdenoise.eval.temporal_metrics import metric_spec
+
 #: Version of the results.json layout; bump when fields change meaning.
 SCHEMA = "mcdenoise.eval/1"
 
@@ -266,7 +268,6 @@ class EvalResult:
     def format_table(self) -> str:
         """A plain-text summary table (one line per record) for terminals and logs; for
         sequences the values past the warm-up (see :meth:`format_frames`)."""
-        from mcdenoise.eval.temporal_metrics import metric_spec
 
         # the parts of a summary metric (bias R, G, B) stay in the JSON and CSV
         shown = [
@@ -307,7 +308,6 @@ class EvalResult:
         """Per-frame values of every sequence: one line per frame, per record the columns
         ``metrics`` (those evaluated); warm-up frames are marked ``*``. Empty without
         sequences."""
-        from mcdenoise.eval.temporal_metrics import metric_spec
 
         keys = [m for m in metrics if m in self.metrics]
         blocks = []
@@ -335,7 +335,6 @@ class EvalResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe dict: schema, version, metric definitions, references and records
         (and, for sequences, how the warm-up is reported)."""
-        from mcdenoise.eval.temporal_metrics import metric_spec
 
         extra = {}
         if self.warmup is not None and self.has_sequences:

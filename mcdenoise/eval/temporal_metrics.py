@@ -16,24 +16,12 @@ trmae       mean(|Δo_t − Δr_t| / (|Δr_t| + 0.01)) / 3                 Noise
 The sequence value of each is the arithmetic mean over its frame pairs (Noisebase's
 ``TemporalMetricAdapter.compute``: the sum over pairs divided by their number).
 
-* ``trelmse`` (temporal relMSE) is the project's definition (``DESIGN.md``, issue 23): the
+* ``trelmse`` (temporal relMSE) is the project's definition (``DESIGN.md``): the
   relMSE of the frame difference, normalised like relMSE by the *current* reference frame
   ``r_t² + ε`` (ε = :data:`mcdenoise.losses.RELMSE_EPS`, the relMSE ε), not by ``Δr_t``, which
   is 0 wherever the scene is still and would make every flicker there infinitely bad.
-* ``tpsnr`` and ``trmae`` are Noisebase's (Balint et al. 2023, "Neural Partitioning Pyramids
-  for Denoising Monte Carlo Renderings"; ``noisebase/scripts/nb_compute_metrics.py``,
-  github.com/balintio/noisebase at commit 63056ed), ported literally so numbers compare with
-  that benchmark. Noisebase does not compute them on the HDR frames but on the PNGs its test
-  loader saved (``noisebase.loaders.torch.test_sample_v1.Sequence.save``): linear RGB through
-  ``noisebase.data.ACES`` (BakingLab's fitted ACES RRT+ODT with its input and output
-  matrices, then clip to [0, 1] and gamma 1/2.2, no exposure), times 255 and cut to 8 bits by
-  ``astype(np.uint8)`` (truncation, not rounding), and read back as ``uint8 / 255``
-  (:func:`noisebase_display`). Its ``rmae`` divides the mean over all channels by 3 once more
-  (its ``/ 3``): kept, so values equal Noisebase's. One departure: for a pair whose output
-  difference equals the reference's exactly, Noisebase's ``1 / mse`` raises
-  ``ZeroDivisionError``; here tPSNR is ``+inf``, as :func:`mcdenoise.eval.metrics.psnr` is
-  for identical images. Noisebase computes in float32 torch, this module in float64 on the
-  same 8-bit values: results agree to float32 rounding (about 1e-6 relative).
+* ``tpsnr`` and ``trmae`` are Noisebase's (Balint et al. 2023), ported literally so numbers
+  compare with that benchmark, on its 8-bit display values: see :mod:`mcdenoise.eval.noisebase`.
 
 Warm-up. A temporal method has no history on the first frame (SVGF starts its moving average
 there; a causal window has no past frame yet), so its first frames are worse than the rest
@@ -45,7 +33,7 @@ apart, not dropped (:class:`SequenceValues`): the headline values average the fr
 ``1 ≤ t ≤ W``; the "all" values average every frame and every pair ``t ≥ 1`` (with ``W = 0``
 the headline trelmse is the mean over all ``t ≥ 1`` of ``DESIGN.md``). The default
 ``W =`` :data:`WARMUP_FRAMES` ``= 2``: a 5-frame window (Vogels et al. 2018, two frames on
-each side, the size issue 23 reports) has its whole past from frame 2 on, and the sequences
+each side) has its whole past from frame 2 on, and the sequences
 this project renders are short (6–16 frames), so a longer warm-up would leave few frames to
 judge. SVGF's spatial variance estimate is used until its history holds 4 frames (Schied
 et al. 2017): ``warmup = 4`` excludes that too; ``warmup = 16`` is Noisebase's setting.
@@ -69,87 +57,31 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import InputError
+from mcdenoise.eval.images import ArrayLike, as_image, check_same_shape, nonfinite_pixels
 from mcdenoise.eval.metrics import (
     LINEAR,
     METRICS,
-    ArrayLike,
     Metric,
     MetricUnavailable,
-    as_image,
-    check_same_shape,
     compute_metrics,
     describe_metric,
-    nonfinite_pixels,
     relative_squared_error,
     resolve_metrics,
+)
+from mcdenoise.eval.noisebase import (
+    NOISEBASE_DISPLAY,
+    NOISEBASE_RMAE_EPS,
+    SOURCE_NOISEBASE,
+    noisebase_display,
+    tpsnr_pair,
+    trmae_pair,
 )
 from mcdenoise.losses import RELMSE_EPS
 
 #: Default number of warm-up frames reported apart (see the module docstring for why 2).
 WARMUP_FRAMES = 2
 
-#: ε of Noisebase's ``rmae``: ``|x − r| / (|r| + 0.01)``.
-NOISEBASE_RMAE_EPS = 0.01
-
-#: Colour space of Noisebase's metrics.
-NOISEBASE_DISPLAY = (
-    "Noisebase 8-bit display: ACES (BakingLab fit), clip [0, 1], gamma 1/2.2, "
-    "×255 truncated to uint8, /255"
-)
-
-_SOURCE_NOISEBASE = "noisebase/scripts/nb_compute_metrics.py (github.com/balintio/noisebase)"
-
-# noisebase.data.ACES, adapted there from github.com/TheRealMJP/BakingLab (ACES.hlsl)
-_ACES_INPUT = np.array(
-    [
-        [0.59719, 0.35458, 0.04823],
-        [0.07600, 0.90834, 0.01566],
-        [0.02840, 0.13383, 0.83777],
-    ]
-)
-_ACES_OUTPUT = np.array(
-    [
-        [1.60475, -0.53108, -0.07367],
-        [-0.10208, 1.10813, -0.00605],
-        [-0.00327, -0.07276, 1.07602],
-    ]
-)
-_ACES_GAMMA = 2.2
-
 _QUIET = {"invalid": "ignore", "over": "ignore", "divide": "ignore"}
-
-
-# --- Noisebase's display encoding ------------------------------------------------------------
-
-
-def noisebase_uint8(image: ArrayLike) -> np.ndarray:
-    """The 8-bit frame Noisebase would have saved for a linear HDR frame: ``(3, H, W)`` uint8.
-
-    ``noisebase.data.ACES`` (input matrix, the rational RRT+ODT fit
-    ``(x(x + 0.0245786) − 0.000090537) / (x(0.983729x + 0.4329510) + 0.238081)``, output
-    matrix, clip to [0, 1], power 1/2.2) in float64, then ``(· × 255).astype(np.uint8)``:
-    truncated, as Noisebase's ``Sequence.save`` does. No exposure is applied.
-
-    Args:
-        image: ``(3, H, W)`` linear HDR RGB, finite.
-
-    >>> noisebase_uint8(np.ones((3, 1, 1))).ravel().tolist()  # mid grey 1.0 -> 205.06 -> 205
-    [205, 205, 205]
-    """
-    x = np.moveaxis(as_image(image), 0, -1)  # (H, W, 3), float64
-    with np.errstate(**_QUIET):
-        x = np.einsum("ji, hwi -> hwj", _ACES_INPUT, x)
-        a = x * (x + 0.0245786) - 0.000090537
-        b = x * (0.983729 * x + 0.4329510) + 0.238081
-        x = np.einsum("ji, hwi -> hwj", _ACES_OUTPUT, a / b)
-        x = np.power(np.clip(x, 0.0, 1.0), 1.0 / _ACES_GAMMA)
-    return np.moveaxis((x * 255).astype(np.uint8), -1, 0)
-
-
-def noisebase_display(image: ArrayLike) -> np.ndarray:
-    """Noisebase's metric input for a linear HDR frame: :func:`noisebase_uint8` ``/ 255``,
-    ``(3, H, W)`` float64 in [0, 1] (Noisebase's ``np_to_torch``, in float64)."""
-    return noisebase_uint8(image).astype(np.float64) / 255.0
 
 
 # --- one frame pair ----------------------------------------------------------------------------
@@ -158,18 +90,6 @@ def noisebase_display(image: ArrayLike) -> np.ndarray:
 def _trelmse_pair(o0: np.ndarray, o1: np.ndarray, r0: np.ndarray, r1: np.ndarray) -> float:
     with np.errstate(**_QUIET):
         return float(np.mean(relative_squared_error(((o1 - o0) - (r1 - r0)) ** 2, r1)))
-
-
-def _tpsnr_pair(o0: np.ndarray, o1: np.ndarray, r0: np.ndarray, r1: np.ndarray) -> float:
-    # Noisebase: psnr(test - prev_test, reference - prev_ref) = 10 log10(1 / mse)
-    err = float(np.mean(((o1 - o0) - (r1 - r0)) ** 2))
-    return math.inf if err == 0.0 else 10.0 * math.log10(1.0 / err)
-
-
-def _trmae_pair(o0: np.ndarray, o1: np.ndarray, r0: np.ndarray, r1: np.ndarray) -> float:
-    # Noisebase: rmae(test - prev_test, reference - prev_ref), its "/ 3" included
-    dt, dr = o1 - o0, r1 - r0
-    return float(np.mean(np.abs(dt - dr) / (np.abs(dr) + NOISEBASE_RMAE_EPS))) / 3
 
 
 # --- registry --------------------------------------------------------------------------------
@@ -231,24 +151,24 @@ TEMPORAL_METRICS: dict[str, TemporalMetric] = {
         TemporalMetric(
             "tpsnr",
             "tPSNR (dB)",
-            _tpsnr_pair,
+            tpsnr_pair,
             NOISEBASE_DISPLAY,
             "10·log10(1 / mean((Δo − Δr)²)) with peak 1, as Noisebase; +inf for an exact "
             f'difference (written as "inf"); {_PAIRS}',
             higher_is_better=True,
             display=True,
-            source=_SOURCE_NOISEBASE,
+            source=SOURCE_NOISEBASE,
         ),
         TemporalMetric(
             "trmae",
             "tRMAE",
-            _trmae_pair,
+            trmae_pair,
             NOISEBASE_DISPLAY,
             f"mean(|Δo − Δr| / (|Δr| + {NOISEBASE_RMAE_EPS})) / 3, as Noisebase (its / 3 "
             f"included); {_PAIRS}",
             NOISEBASE_RMAE_EPS,
             display=True,
-            source=_SOURCE_NOISEBASE,
+            source=SOURCE_NOISEBASE,
         ),
     )
 }

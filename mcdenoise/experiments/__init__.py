@@ -30,13 +30,8 @@ Typical use::
 
 from mcdenoise.experiments.entries import MethodEntry, plan_methods
 from mcdenoise.experiments.runner import RunSummary, run_experiment
-from mcdenoise.experiments.spec import (
-    ExperimentError,
-    ExperimentSpec,
-    Sweep,
-    load_experiment,
-    parse_experiment,
-)
+from mcdenoise.experiments.spec import ExperimentSpec, Sweep, load_experiment, parse_experiment
+from mcdenoise.experiments.spec_fields import ExperimentError
 
 __all__ = [
     "ExperimentError",

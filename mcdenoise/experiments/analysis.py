@@ -38,8 +38,9 @@ import numpy as np
 
 from mcdenoise.eval.results import decode_float, jsonable
 from mcdenoise.eval.temporal_metrics import metric_spec
-from mcdenoise.experiments.dataset import Level, SceneData
+from mcdenoise.experiments.dataset import Level, SceneData, read_reference
 from mcdenoise.experiments.entries import MethodEntry
+from mcdenoise.experiments.provenance import provenance
 from mcdenoise.experiments.quality import (
     FLOOR_FACTOR,
     NoisyCurve,
@@ -48,8 +49,10 @@ from mcdenoise.experiments.quality import (
     noisy_rises,
     reference_noise_floor,
 )
+from mcdenoise.experiments.sequence_units import TEMPORAL_OVERALL, temporal_rows
 from mcdenoise.experiments.shards import hosts_note, timing_hosts
-from mcdenoise.experiments.spec import NOISY, ExperimentSpec
+from mcdenoise.experiments.spec import ExperimentSpec
+from mcdenoise.experiments.spec_fields import NOISY
 from mcdenoise.experiments.stats import RatioStats, compare_methods
 from mcdenoise.experiments.tradeoff import (
     EqualTimeRow,
@@ -377,7 +380,6 @@ class ExperimentResult:
     def temporal_dict(self) -> dict[str, Any]:
         """The over-sequences table of per-frame and temporal errors against time per frame
         (:func:`mcdenoise.experiments.sequence_units.temporal_rows`)."""
-        from mcdenoise.experiments.sequence_units import TEMPORAL_OVERALL, temporal_rows
 
         return {
             "warmup_frames": self.spec.warmup_frames,
@@ -484,7 +486,6 @@ def _noise_floor(scene: SceneData) -> tuple[float | None, str | None]:
 
 
 def _floor_of(reference: Path) -> tuple[float | None, str | None]:
-    from mcdenoise.experiments.dataset import read_reference
 
     buffers = read_reference(reference)
     if "color_var" not in buffers:
@@ -533,7 +534,6 @@ def assemble(
 
     ``machine_at_start`` (:func:`~mcdenoise.experiments.timing.machine_info` taken before the
     units ran) goes into the provenance next to the machine at the end (load averages)."""
-    from mcdenoise.experiments.provenance import provenance
 
     recs = [dict(r) for r in records]
     labels = [e.label for e in entries]

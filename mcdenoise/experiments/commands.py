@@ -9,9 +9,13 @@ absolute, so the spec runs from any folder. Both only read: they register and ru
 from __future__ import annotations
 
 import os
+import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+from mcdenoise.methods.external import is_interpreter
+from mcdenoise.registry import command_template
 
 
 def spec_commands(
@@ -23,7 +27,6 @@ def spec_commands(
     method built before in this process, named in ``methods``, ``[params]`` or a
     ``[[sweep]]``. Looks only: registers and runs nothing, and skips what is malformed
     (the parser says what is wrong with it)."""
-    from mcdenoise.registry import command_template
 
     folder = None if base is None else Path(base)
     out: list[tuple[str, str]] = []
@@ -71,9 +74,6 @@ def spec_relative(base: Path | None, command: str) -> str:
     file of that name lies beside the spec, as on the command line
     (:func:`mcdenoise.methods.external._absolute_args`); tokens with placeholders or options
     are left alone."""
-    import shlex
-
-    from mcdenoise.methods.external import is_interpreter
 
     if base is None:
         return command

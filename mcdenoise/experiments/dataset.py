@@ -32,12 +32,20 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from mcdenoise.experiments.folder_data import has_manifest, scan_folder
 from mcdenoise.experiments.scene_data import Frame, Level, SceneData, read_level, read_reference
-from mcdenoise.experiments.spec import ExperimentError, ExperimentSpec
+from mcdenoise.experiments.spec import ExperimentSpec
+from mcdenoise.experiments.spec_fields import ExperimentError
+from mcdenoise.render.config import RenderConfig
+from mcdenoise.render.generate import generate
+from mcdenoise.render.jobs import jobs_from_random, jobs_from_specs
+from mcdenoise.render.manifest import MANIFEST, load_manifest, shard_manifests
+from mcdenoise.render.scene_spec import SpecError, load_spec, parse_spec
 
 __all__ = [
     "Frame",
@@ -65,7 +73,6 @@ def render_folder(spec: ExperimentSpec, out: str | os.PathLike[str]) -> Path:
 def render_jobs(spec: ExperimentSpec) -> list[Any]:
     """The :class:`~mcdenoise.render.jobs.ImageJob` list of the spec's scenes (curated
     specs, then ``random`` procedural scenes), seeded by ``[render] seed``."""
-    from mcdenoise.render.jobs import jobs_from_random, jobs_from_specs
 
     jobs = jobs_from_specs([_scene_spec(spec, p) for p in spec.scene_specs], seed=spec.seed)
     if spec.random:
@@ -79,9 +86,6 @@ def _scene_spec(spec: ExperimentSpec, path: Path) -> Any:
     """The scene spec at ``path``, with the experiment's ``[scenes.animate.<name>]`` merged
     into its TOML (``animation`` replaces its ``[animation]``, each ``move`` sets
     ``objects[i].motion``) and validated by :func:`mcdenoise.render.scene_spec.parse_spec`."""
-    import tomllib
-
-    from mcdenoise.render.scene_spec import SpecError, load_spec, parse_spec
 
     scene = load_spec(path)
     extra = spec.animate.get(scene.name)
@@ -128,15 +132,10 @@ def prepare_data(
     """
     folder = render_folder(spec, out)
     if spec.folder is not None:
-        from mcdenoise.experiments.folder_data import has_manifest
-
         if not has_manifest(folder):  # inputs + references: load_dataset reads them all
             return folder, [], None
         manifest = _manifest(folder)
         return folder, [str(r["id"]) for r in manifest.get("images", [])], None
-    from mcdenoise.render.config import RenderConfig
-    from mcdenoise.render.generate import generate
-    from mcdenoise.render.manifest import shard_manifests
 
     config = RenderConfig(
         out=folder,
@@ -167,7 +166,6 @@ def prepare_data(
 
 
 def _manifest(folder: Path) -> dict[str, Any]:
-    from mcdenoise.render.manifest import MANIFEST, load_manifest
 
     if not (folder / MANIFEST).is_file():
         raise ExperimentError(
@@ -209,7 +207,6 @@ def _levels(record: Mapping[str, Any], where: str) -> list[Level]:
 def folder_frames(folder: str | os.PathLike[str]) -> int | None:
     """The frame count of a render folder's sequences (``None``: it holds still images, or
     it is a folder of inputs without manifest)."""
-    from mcdenoise.experiments.folder_data import has_manifest
 
     if not has_manifest(folder):
         return None
@@ -238,7 +235,6 @@ def load_dataset(
             ``sequences`` (or a still folder with it), or a file missing on disk.
     """
     root = Path(folder).resolve()
-    from mcdenoise.experiments.folder_data import has_manifest, scan_folder
 
     if not has_manifest(root):
         if sequences:

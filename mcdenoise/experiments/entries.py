@@ -13,7 +13,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from mcdenoise.experiments.spec import NOISY, ExperimentError, ExperimentSpec
+from mcdenoise.experiments.spec import ExperimentSpec
+from mcdenoise.experiments.spec_fields import NOISY, ExperimentError
 from mcdenoise.registry import get_method, methods
 
 
@@ -112,7 +113,7 @@ def run_device(method: Any, device: Any, notes: list[str], name: str) -> Any:
     or the CPU (with a note in ``notes``) when the method does not support it."""
     if device.type in method.devices:
         return device
-    import torch
+    import torch  # lazy: start-up without torch
 
     notes.append(f"{name} does not run on {device.type}: ran on the CPU")
     return torch.device("cpu")

@@ -35,8 +35,14 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
+from mcdenoise.errors import InputError
+from mcdenoise.eval.matching import PrefixMatcher
 from mcdenoise.experiments.scene_data import Level, SceneData
-from mcdenoise.experiments.spec import ExperimentError
+from mcdenoise.experiments.spec_fields import ExperimentError
+from mcdenoise.io.atomic import TMP_PREFIX
+from mcdenoise.io.exr import probe_exr
+from mcdenoise.io.oidn_layout import find_oidn_images, is_oidn_tree
+from mcdenoise.render.manifest import MANIFEST
 
 #: The spp in an input's name: ``_spp16``, ``_16spp``, ``_0016spp`` at the end of the stem.
 SPP_IN_NAME = re.compile(r"(?:^|[_\-.])(?:spp(?P<a>[0-9]+)|(?P<b>[0-9]+)spp)$")
@@ -45,7 +51,6 @@ SPP_PART = re.compile(r"^spp(?P<n>[0-9]+)$")
 
 
 def has_manifest(folder: str | Path) -> bool:
-    from mcdenoise.render.manifest import MANIFEST
 
     return (Path(folder) / MANIFEST).is_file()
 
@@ -78,7 +83,6 @@ def _scene(image_id: str, levels: Sequence[Level], reference: Path, layout: str)
 
 
 def _header_spp(path: Path) -> int | None:
-    from mcdenoise.io.exr import probe_exr
 
     value = probe_exr(path)[0].attributes.get("mcdenoise:spp")
     try:
@@ -88,8 +92,6 @@ def _header_spp(path: Path) -> int | None:
 
 
 def _oidn(root: Path) -> list[SceneData]:
-    from mcdenoise.errors import InputError
-    from mcdenoise.io.oidn_layout import find_oidn_images
 
     try:
         images = find_oidn_images(root)
@@ -106,7 +108,6 @@ def _oidn(root: Path) -> list[SceneData]:
 def _input_levels(path: Path) -> list[Level]:
     """The levels of one input file: one per ``spp<n>`` part, else one of the spp in its name
     or header."""
-    from mcdenoise.io.exr import probe_exr
 
     parts = probe_exr(path)
     named = [(p, SPP_PART.match(p.name or "")) for p in parts]
@@ -123,8 +124,6 @@ def _input_levels(path: Path) -> list[Level]:
 
 
 def _inputs(root: Path, references: Path | None) -> list[SceneData]:
-    from mcdenoise.eval.matching import PrefixMatcher
-    from mcdenoise.io.atomic import TMP_PREFIX
 
     refdir = references if references is not None else root / "ref"
     refs = {
@@ -175,7 +174,6 @@ def scan_folder(
             inputs of one scene and spp, scenes of different levels, a level of ``spp``
             missing.
     """
-    from mcdenoise.io.oidn_layout import is_oidn_tree
 
     root = Path(folder).resolve()
     refs = None if references is None else Path(references).resolve()

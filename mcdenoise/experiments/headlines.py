@@ -30,7 +30,7 @@ from mcdenoise.experiments.analysis import (
     errors_by_key,
 )
 from mcdenoise.experiments.quality import FLOOR_FACTOR
-from mcdenoise.experiments.spec import NOISY
+from mcdenoise.experiments.spec_fields import NOISY
 from mcdenoise.experiments.stats import BETTER, bootstrap_geomean_ci
 
 #: A method whose mean bias exceeds this magnitude (2 %) in some result is named.

@@ -19,6 +19,7 @@ from mcdenoise.experiments.analysis import (
     number,
     relmse_of,
 )
+from mcdenoise.experiments.headlines import BIAS_LIMIT, pct
 from mcdenoise.experiments.htmlkit import LIM_MARK as _LIM_MARK
 from mcdenoise.experiments.htmlkit import esc as _esc
 from mcdenoise.experiments.htmlkit import g as _g
@@ -26,7 +27,8 @@ from mcdenoise.experiments.htmlkit import img as _img
 from mcdenoise.experiments.htmlkit import sec as _sec
 from mcdenoise.experiments.htmlkit import sub as _sub
 from mcdenoise.experiments.htmlkit import table as _table
-from mcdenoise.experiments.spec import NOISY
+from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time, plot_speedup
+from mcdenoise.experiments.spec_fields import NOISY
 from mcdenoise.experiments.stats import BETTER, IS_BASELINE, WORSE
 from mcdenoise.geomean import geometric_mean
 
@@ -52,7 +54,6 @@ def plot_series(
 def _overall_plots(
     result: ExperimentResult, view: OverallView, out: Path, tag: str = "overall"
 ) -> list[str]:
-    from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time, plot_speedup
 
     rows = [o for o in view.rows if o.complete]
     fake = [
@@ -171,7 +172,6 @@ def overall_sections(result: ExperimentResult, out: Path, reason: str | None) ->
 
 
 def _bias_table(result: ExperimentResult, view: OverallView) -> str:
-    from mcdenoise.experiments.headlines import BIAS_LIMIT, pct
 
     by = {(o.method, o.spp): o for o in view.rows}
     rows = []

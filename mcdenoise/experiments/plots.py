@@ -39,7 +39,7 @@ _MARKERS = "osD^v<>pXh*"
 def plots_unavailable() -> str | None:
     """``None`` when matplotlib can draw here, else the reason."""
     try:
-        import matplotlib  # noqa: F401
+        import matplotlib  # noqa: F401  # lazy: optional, see except
     except ImportError:
         return "matplotlib is not installed (pip install 'mcdenoise[plots]')"
     return None
@@ -48,7 +48,7 @@ def plots_unavailable() -> str | None:
 def styles(labels: Sequence[str]) -> dict[str, dict[str, Any]]:
     """label -> matplotlib line style; ``noisy`` is black and dashed, the rest cycle through
     the tab10/tab20 colours and a set of markers."""
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # lazy: matplotlib is optional and slow to import
 
     others = [lb for lb in labels if lb != "noisy"]
     cmap = colormaps["tab10" if len(others) <= 10 else "tab20"]
@@ -64,8 +64,10 @@ def styles(labels: Sequence[str]) -> dict[str, dict[str, Any]]:
 
 
 def _figure() -> tuple[Any, Any]:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import (  # lazy: matplotlib is optional and slow to import
+        FigureCanvasAgg,
+    )
+    from matplotlib.figure import Figure  # lazy: matplotlib is optional and slow to import
 
     fig = Figure(figsize=FIGSIZE, dpi=DPI)
     FigureCanvasAgg(fig)
@@ -98,7 +100,12 @@ def log_ticks(axis: Any, lo: float, hi: float, *, base: int = 10) -> None:
     :data:`LABEL_MINOR_BELOW` decades. ``base=2`` (spp): a labelled tick at every power of 2,
     written as plain numbers (1, 2, 4, ...).
     """
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter, NullLocator
+    from matplotlib.ticker import (  # lazy: matplotlib is optional and slow to import
+        FuncFormatter,
+        LogLocator,
+        NullFormatter,
+        NullLocator,
+    )
 
     axis.set_major_formatter(FuncFormatter(lambda v, _: tick_text(v)))
     if base == 2:

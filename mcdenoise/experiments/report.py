@@ -31,19 +31,22 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import McdenoiseError
-from mcdenoise.eval.eval_report import error_scale, write_png
+from mcdenoise.eval.eval_report import error_scale, percent, write_png
 from mcdenoise.eval.metrics import relmse_map
 from mcdenoise.eval.preview import choose_crop, crop
 from mcdenoise.eval.results import encode_float
 from mcdenoise.eval.temporal_metrics import metric_spec
 from mcdenoise.eval.tonemap import auto_exposure, colorbar, display, false_color
 from mcdenoise.experiments.analysis import (
+    SEQUENCE_DEFINITIONS,
     ExperimentResult,
     SceneSummary,
+    definitions,
     number,
     relmse_of,
 )
 from mcdenoise.experiments.dataset import read_level, read_reference
+from mcdenoise.experiments.headlines import headlines
 from mcdenoise.experiments.htmlkit import LIM_MARK as _LIM_MARK
 from mcdenoise.experiments.htmlkit import esc as _esc
 from mcdenoise.experiments.htmlkit import g as _g
@@ -53,8 +56,12 @@ from mcdenoise.experiments.htmlkit import slug as _slug
 from mcdenoise.experiments.htmlkit import sub as _sub
 from mcdenoise.experiments.htmlkit import table as _table
 from mcdenoise.experiments.overall_report import equal_time_table, overall_sections, plot_series
+from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time, plots_unavailable
 from mcdenoise.experiments.quality import FLOOR_FACTOR
-from mcdenoise.experiments.spec import NOISY
+from mcdenoise.experiments.spec_fields import NOISY
+from mcdenoise.experiments.temporal_report import scene_images, scene_table, temporal_section
+from mcdenoise.experiments.timing import PROCESS, timing_clock
+from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import write_text_atomic
 
 #: Columns of results.csv before the metric columns.
@@ -194,13 +201,11 @@ def record_clock(r: Mapping[str, Any]) -> str | None:
     noisy); records written before the field existed are judged by their method."""
     if "timing_clock" in r:
         return r["timing_clock"]
-    from mcdenoise.experiments.timing import timing_clock
 
     return timing_clock(str(r.get("base_method") or r.get("method")))
 
 
 def _process_mark(r: Mapping[str, Any]) -> str:
-    from mcdenoise.experiments.timing import PROCESS
 
     return PROCESS_MARK if record_clock(r) == PROCESS else ""
 
@@ -267,7 +272,6 @@ def write_frames_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> 
 
 
 def _scene_plots(result: ExperimentResult, scene: SceneSummary, index: int, out: Path) -> list[str]:
-    from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time
 
     recs = result.scene_records(scene.id)
     tag = f"{index:02d}_{_slug(scene.id)}"
@@ -360,7 +364,6 @@ def _threads(result: ExperimentResult) -> str:
 
 
 def _findings(result: ExperimentResult) -> str:
-    from mcdenoise.experiments.headlines import headlines
 
     items = headlines(result)
     if not items:
@@ -419,8 +422,6 @@ def _metric(name: str, value: Any) -> str:
     """A metric value for a table: signed ones (mean bias) in percent."""
     v = number(value)
     if v is not None and math.isfinite(v) and metric_spec(name).signed:
-        from mcdenoise.eval.eval_report import percent
-
         return percent(v)
     return _g(value, 4)
 
@@ -471,7 +472,6 @@ def _all_metrics_table(result: ExperimentResult, scene: SceneSummary) -> str:
 
 
 def _strip(result: ExperimentResult, scene: SceneSummary, index: int, out: Path) -> str:
-    from mcdenoise.io import load_buffers
 
     spp = result.strip_spp
     ref_full = read_reference(scene.reference_file)["color"].numpy().astype(np.float64)
@@ -602,8 +602,6 @@ def _scene_section(
         parts.append(f"<details>{summary}{equal_time_table(scene.equal_time)}</details>")
     parts.append(_all_metrics_table(result, scene))
     if scene.is_sequence:
-        from mcdenoise.experiments.temporal_report import scene_images, scene_table
-
         parts.append(f"<h3>Per frame and over time: {_esc(scene.id)}</h3>")
         parts.append(scene_table(result, scene))
         parts.append(scene_images(result, scene, index, out))
@@ -644,7 +642,6 @@ def _provenance(result: ExperimentResult) -> str:
         ("spec", result.spec.source),
     ]
     body = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in rows)
-    from mcdenoise.experiments.analysis import SEQUENCE_DEFINITIONS, definitions
 
     every = {
         **definitions(result.metrics),
@@ -667,7 +664,6 @@ def _provenance(result: ExperimentResult) -> str:
 
 def render_html(result: ExperimentResult, out_dir: str | os.PathLike[str]) -> str:
     """The report page; writes the PNGs it shows into ``out_dir/images/``."""
-    from mcdenoise.experiments.plots import plots_unavailable
 
     out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
@@ -693,8 +689,6 @@ def render_html(result: ExperimentResult, out_dir: str | os.PathLike[str]) -> st
         parts.append('<div class="warn">' + "<br>".join(_esc(n) for n in result.notes) + "</div>")
     parts += overall_sections(result, out, reason)
     if result.is_sequences:
-        from mcdenoise.experiments.temporal_report import temporal_section
-
         parts.append(temporal_section(result, out, reason is None))
     for i, scene in enumerate(result.scenes):
         parts.append(_scene_section(result, scene, i, out, reason is None))

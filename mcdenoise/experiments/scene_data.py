@@ -13,6 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mcdenoise.io import load_buffers
+from mcdenoise.io.oidn_layout import oidn_files, parse_oidn_name, read_oidn_level
+
 
 @dataclass(frozen=True)
 class Level:
@@ -68,8 +71,6 @@ class SceneData:
     def files(self) -> list[Path]:
         """Every file of the image or sequence (what the data hash covers)."""
         if not self.frames:
-            from mcdenoise.io.oidn_layout import oidn_files, parse_oidn_name
-
             own = [lv.file for lv in self.levels if lv.file is not None] or [self.noisy]
             paths = [*own, self.reference]
             return [q for p in paths for q in (oidn_files(p) if parse_oidn_name(p.name) else [p])]
@@ -86,8 +87,6 @@ def read_level(noisy: str | os.PathLike[str], level: Level) -> Any:
     """The level ``level`` of the image whose noisy file is ``noisy`` as ``FeatureBuffers``:
     a part of ``noisy``, or the level's own file (an OIDN colour file with its albedo and
     normal files; any other EXR through the renderer profiles, with the level's spp)."""
-    from mcdenoise.io import load_buffers
-    from mcdenoise.io.oidn_layout import parse_oidn_name, read_oidn_level
 
     if level.file is None:
         return load_buffers(noisy, part=level.part)
@@ -102,8 +101,6 @@ def read_level(noisy: str | os.PathLike[str], level: Level) -> Any:
 def read_reference(path: str | os.PathLike[str]) -> Any:
     """A reference as ``FeatureBuffers`` (an OIDN ``.hdr.exr`` with its feature files, or
     any EXR through the renderer profiles)."""
-    from mcdenoise.io import load_buffers
-    from mcdenoise.io.oidn_layout import parse_oidn_name, read_oidn_level
 
     if parse_oidn_name(Path(path).name) is not None:
         return read_oidn_level(path)

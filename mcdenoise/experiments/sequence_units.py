@@ -26,18 +26,28 @@ sequence in place of an image:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mcdenoise.denoise import denoise_sequence
+from mcdenoise.denoise_files import ReadOptions, WriteOptions
 from mcdenoise.errors import McdenoiseError
+from mcdenoise.eval.results import decode_float
+from mcdenoise.eval.temporal_metrics import sequence_metrics
+from mcdenoise.experiments.entries import run_device
+from mcdenoise.experiments.timing import time_runs
+from mcdenoise.geomean import geometric_mean
+from mcdenoise.io import load_buffers
+from mcdenoise.output import write_result
+from mcdenoise.registry import get_method
 
 
 def load_frames(paths: Sequence[Path], part: str | None = None) -> list[Any]:
     """Every frame's ``FeatureBuffers`` (the level ``part``; ``None``: the only part)."""
-    from mcdenoise.io import load_buffers
 
     return [load_buffers(p, part=part) for p in paths]
 
@@ -64,7 +74,6 @@ def run_sequence_unit(
     frame); return its record. ``base`` gives the record's common fields, ``fail`` turns it
     into a "could not run" record, ``relative`` names a path relative to ``out`` (the
     runner's helpers, so still and sequence records share one layout)."""
-    from mcdenoise.eval.temporal_metrics import sequence_metrics
 
     entry, level = unit.entry, unit.level
     record = base()
@@ -75,11 +84,6 @@ def run_sequence_unit(
         images = [f["color"].numpy() for f in frames]
         frame_seconds: list[float] = [0.0] * n
     else:
-        from mcdenoise.denoise import denoise_sequence
-        from mcdenoise.experiments.entries import run_device
-        from mcdenoise.experiments.timing import time_runs
-        from mcdenoise.registry import get_method
-
         method = get_method(entry.method)
         dev = run_device(method, device, record["notes"], entry.method)
 
@@ -136,8 +140,6 @@ def _write_frame(
 ) -> None:
     """One output frame with the attributes a still output has, plus its frame number
     (:func:`mcdenoise.output.write_result`)."""
-    from mcdenoise.denoise_files import ReadOptions, WriteOptions
-    from mcdenoise.output import write_result
 
     path.parent.mkdir(parents=True, exist_ok=True)
     extra = {
@@ -188,7 +190,6 @@ TEMPORAL_COLUMNS = (
 def number(value: Any) -> float | None:
     """A record value as a float (``"inf"`` strings decoded); ``None`` when missing (as
     :func:`mcdenoise.experiments.analysis.number`, which imports this module: no cycle)."""
-    from mcdenoise.eval.results import decode_float
 
     try:
         return decode_float(value)
@@ -197,7 +198,6 @@ def number(value: Any) -> float | None:
 
 
 def _value(record: Mapping[str, Any], group: str, metric: str) -> float | None:
-    import math
 
     if record.get("failed"):
         return None
@@ -208,9 +208,6 @@ def _value(record: Mapping[str, Any], group: str, metric: str) -> float | None:
 def temporal_rows(result: Any, scenes: Sequence[str] | None = None) -> list[dict[str, Any]]:
     """One row per (method, spp) over the sequences ``scenes`` (default: all): see
     :data:`TEMPORAL_OVERALL`; a value is ``None`` unless every sequence has it."""
-    import math
-
-    from mcdenoise.geomean import geometric_mean
 
     ids = list(scenes) if scenes is not None else [s.id for s in result.scenes]
     by = {(r["scene"], int(r["spp"]), r["method"]): r for r in result.records}

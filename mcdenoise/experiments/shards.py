@@ -48,9 +48,10 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mcdenoise.experiments.spec import ExperimentError
+from mcdenoise.experiments.spec_fields import ExperimentError
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.io.lockfile import LockError, LockFile, live_holder
+from mcdenoise.render.manifest import MANIFEST, load_manifest
 
 #: Folder of the shard records, under ``DIR/work``.
 SHARDS = "shards"
@@ -210,7 +211,6 @@ def missing_message(
 def check_rendered(folder: Path, ids: Sequence[str], out: Path) -> None:
     """For a merge of a rendering spec: raise :class:`ExperimentError` (one line: how many
     images, which shards) unless the render folder's manifest lists every image ``ids``."""
-    from mcdenoise.render.manifest import MANIFEST, load_manifest
 
     have: set[str] = set()
     if (folder / MANIFEST).is_file():

@@ -2,82 +2,8 @@
 
 An experiment spec is a TOML file (``data/experiments/*.toml``) read by
 ``mcdenoise experiment SPEC -o DIR``. This module parses and validates it; it renders
-nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Schema::
-
-    name = "demo"                         # default: the file's stem
-    description = "..."                   # optional
-    methods = "all"                       # every registered method (unavailable ones are
-                                          # listed as skipped, with the reason), or a list of
-                                          # registry names/aliases; "noisy" is always included
-    metrics = ["relmse", "ssim"]          # default: every registered metric
-    repetitions = 3                       # timed denoise runs per input (median reported)
-    warmup = 1                            # untimed runs before them, per input
-    device = "cpu"                        # auto, cpu or cuda (a method that cannot run there
-                                          # runs on the CPU, and the record says so)
-    threads = 2                           # torch threads while denoising (default: torch's)
-
-    [[external]]                          # a denoiser program, judged like the built-ins
-    name = "mine"                         # its name in `methods`, [params.mine] and the report
-    command = "python my.py {input} {output}"   # a command template (see below)
-    timeout = 600                         # optional: seconds per frame (default 600)
-
-    [scenes]                              # either scene specs to render ...
-    specs = ["../scenes/cornell.toml"]    # files or folders of *.toml, relative to this file
-    random = 4                            # plus N procedural scenes (default 0), scene k
-                                          # being random_spec([render] seed, k)
-    # folder = "../generated/train"       # ... or an existing `mcdenoise render` folder
-                                          # (relative to this file; used as it is, never
-                                          # rendered into; a folder of sequences, rendered
-                                          # with --frames, makes a sequence experiment)
-    # references = "../refs"             # a folder without manifest.json: its inputs
-                                          # (any profile; or OIDN's training layout) and
-                                          # their references (default: its ref/), matched
-                                          # by name; render time unknown (see below)
-
-    [scenes.animate.cornell]              # sequences only: motion for the scene spec named
-    animation = { camera_path = "orbit", angle = 12 }   # "cornell": its [animation] table
-    move = [{ object = 5, translate = [0.3, 0, 0] }]    # and objects[5].motion (over the
-                                          # sequence), merged into the spec before it is
-                                          # parsed (a curated still gains motion without a copy)
-
-    [render]                              # how missing images are rendered
-    resolution = 128                      # N or [width, height]
-    spp = [1, 2, 4, 8, 16, 32, 64]        # the noisy ladder (progressive levels)
-    ref_spp = 1024
-    variant = "auto"                      # Mitsuba variant
-    seed = 0                              # base seed of the images' sampler seeds and of
-                                          # the procedural scenes (as `mcdenoise render --seed`)
-    pass_spp = 128
-    folder = "data"                       # render folder, relative to the output folder DIR
-                                          # (kept: a second run renders nothing)
-    frames = 12                           # optional: every scene is a sequence of N >= 2
-                                          # frames (`mcdenoise render --frames N`); see below
-
-    [params.nlm]                          # parameter overrides of one method
-    search_radius = 8
-
-    [[sweep]]                             # one extra method per value, labelled
-    method = "xbf"                        # "xbf[kernel_size=5]" etc.
-    param = "kernel_size"
-    values = [5, 11, 21]
-    params = { sigma_spatial = 4.0 }      # optional: fixed overrides for every value
-
-    [stats]
-    baseline = "oidn"                     # per-scene relMSE ratios are taken to this method
-                                          # (a label); "noisy" when it is not in the run
-    bootstrap = 2000                      # bootstrap resamples of the scenes
-    confidence = 0.95
-    seed = 0                              # seed of the bootstrap
-
-    [report]
-    strip_spp = 8                         # spp level of the image strips (default: the middle
-                                          # level of the ladder)
-    budgets = [0.5, 1, 2, 4]              # equal-time budgets in seconds (default: 8
-                                          # log-spaced budgets over the measured total times)
-    outputs = "all"                       # keep the denoised EXR of every level ("all") or of
-                                          # the strip level only ("strip")
-    warmup_frames = 2                     # sequences: first frames reported apart (history
-                                          # warm-up, :mod:`mcdenoise.eval.temporal_metrics`)
+nothing and runs nothing (that is :mod:`mcdenoise.experiments.runner`). Every key, with its
+default, is in docs/experiments.md ("Every key of a spec").
 
 With ``[scenes] folder``, the ladder, size and reference come from that folder's manifest;
 ``[render]`` may then only give ``spp``, a subset of the folder's levels.
@@ -129,7 +55,6 @@ loaded, so a typo fails before anything is rendered.
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import tomllib
@@ -138,11 +63,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcdenoise.errors import McdenoiseError
-from mcdenoise.experiments.commands import spec_commands, spec_relative
+from mcdenoise.eval.temporal_metrics import WARMUP_FRAMES
+from mcdenoise.experiments.commands import spec_commands
+from mcdenoise.experiments.spec_fields import (
+    NOISY,
+    ExperimentError,
+    External,
+    _animate,
+    _check_params,
+    _Ctx,
+    _externals,
+    _int,
+    _list,
+    _method_name,
+    _metric_names,
+    _scene_files,
+    _spp_ladder,
+    _str,
+    _table,
+)
+from mcdenoise.render.config import VARIANT_CHOICES
 
-#: The label of plain Monte Carlo rendering (no denoiser; denoise time 0).
-NOISY = "noisy"
 #: Values of ``[report] outputs``.
 OUTPUT_MODES = ("all", "strip")
 #: Values of ``device``.
@@ -166,8 +107,6 @@ _TOP_KEYS = (
     "report",
 )
 _SCENE_KEYS = ("specs", "random", "folder", "references", "animate")
-_ANIMATE_KEYS = ("animation", "move")
-_MOVE_KEYS = ("object", "translate")
 _RENDER_KEYS = (
     "resolution",
     "spp",
@@ -179,13 +118,8 @@ _RENDER_KEYS = (
     "frames",
 )
 _SWEEP_KEYS = ("method", "param", "values", "params")
-_EXTERNAL_KEYS = ("name", "command", "timeout")
 _STATS_KEYS = ("baseline", "bootstrap", "confidence", "seed")
 _REPORT_KEYS = ("strip_spp", "budgets", "outputs", "warmup_frames")
-
-
-class ExperimentError(McdenoiseError, ValueError):
-    """A bad experiment spec or experiment folder; the message names the file and key."""
 
 
 @dataclass(frozen=True)
@@ -196,18 +130,6 @@ class Sweep:
     param: str
     values: tuple[Any, ...]
     params: Mapping[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class External:
-    """One ``[[external]]``: the command template ``command`` as the method ``name``."""
-
-    name: str
-    command: str
-    timeout: float | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "command": self.command, "timeout": self.timeout}
 
 
 @dataclass(frozen=True)
@@ -329,118 +251,6 @@ def _fixed(s: Sweep) -> dict[str, Any]:
 # --- parsing ------------------------------------------------------------------------------
 
 
-class _Ctx:
-    """Where we are in the spec, for error messages."""
-
-    def __init__(self, source: str, base: Path | None) -> None:
-        self.source = source
-        self.base = base
-
-    def error(self, key: str, msg: str) -> ExperimentError:
-        return ExperimentError(f"{self.source}: {key + ': ' if key else ''}{msg}")
-
-    def resolve(self, value: str) -> Path:
-        p = Path(value).expanduser()
-        if not p.is_absolute() and self.base is not None:
-            p = self.base / p
-        return p.resolve()
-
-
-def _table(
-    ctx: _Ctx, key: str, value: Any, allowed: Sequence[str] | None = None
-) -> Mapping[str, Any]:
-    """``value`` as a table; with ``allowed``, unknown keys are an error naming them."""
-    if not isinstance(value, Mapping):
-        raise ctx.error(key, f"must be a table, got {type(value).__name__}")
-    if allowed is not None:
-        unknown = sorted(set(value) - set(allowed))
-        if unknown:
-            raise ctx.error(
-                key or "top level",
-                f"unknown key(s) {', '.join(unknown)} (allowed: {', '.join(allowed)})",
-            )
-    return value
-
-
-def _int(ctx: _Ctx, key: str, value: Any, *, lo: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ctx.error(key, f"must be an integer, got {value!r}")
-    if value < lo:
-        raise ctx.error(key, f"must be >= {lo}, got {value}")
-    return value
-
-
-def _str(ctx: _Ctx, key: str, value: Any) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise ctx.error(key, f"must be a non-empty string, got {value!r}")
-    return value.strip()
-
-
-def _list(ctx: _Ctx, key: str, value: Any) -> list[Any]:
-    if isinstance(value, str) or not isinstance(value, Sequence) or not value:
-        raise ctx.error(key, f"must be a non-empty list, got {value!r}")
-    return list(value)
-
-
-def _spp_ladder(ctx: _Ctx, key: str, value: Any) -> tuple[int, ...]:
-    levels = tuple(_int(ctx, f"{key}[{i}]", v, lo=1) for i, v in enumerate(_list(ctx, key, value)))
-    if any(b <= a for a, b in itertools.pairwise(levels)):
-        raise ctx.error(key, f"must be strictly increasing, got {list(levels)}")
-    return levels
-
-
-def _scene_files(ctx: _Ctx, key: str, value: Any) -> tuple[Path, ...]:
-    from mcdenoise.render.scene_spec import SpecError, collect_specs
-
-    files: list[Path] = []
-    for i, item in enumerate(_list(ctx, key, value)):
-        p = ctx.resolve(_str(ctx, f"{key}[{i}]", item))
-        try:
-            files.extend(collect_specs([p]))
-        except SpecError:  # named as the experiment spec names it
-            what = (
-                f"folder {item!r} holds no *.toml scene spec"
-                if p.is_dir()
-                else f"{item!r} not found (looked at {p})"
-            )
-            raise ctx.error(f"{key}[{i}]", what) from None
-    if len(set(files)) != len(files):
-        raise ctx.error(key, "names a scene spec twice")
-    return tuple(files)
-
-
-def _method_name(ctx: _Ctx, key: str, value: Any) -> str:
-    from mcdenoise.registry import get_method
-
-    name = _str(ctx, key, value)
-    if name == NOISY:
-        return name
-    try:
-        get_method(name)
-    except McdenoiseError as err:
-        raise ctx.error(key, str(err)) from None
-    return name
-
-
-def _check_params(ctx: _Ctx, key: str, method: str, params: Mapping[str, Any]) -> None:
-    import dataclasses
-
-    from mcdenoise.methods.external import CommandParams
-    from mcdenoise.registry import get_method
-
-    if method == NOISY:
-        if params:
-            raise ctx.error(key, "'noisy' (plain rendering) has no parameters")
-        return
-    try:
-        m = get_method(method)
-        if isinstance(m.defaults, CommandParams):  # checked without running the program
-            m = dataclasses.replace(m, defaults=m.defaults.unasked())
-        m.resolve_params(params)
-    except McdenoiseError as err:
-        raise ctx.error(key, str(err)) from None
-
-
 def parse_experiment(
     data: Mapping[str, Any],
     *,
@@ -526,7 +336,6 @@ def parse_experiment(
     ref_spp = _int(ctx, "render.ref_spp", render.get("ref_spp", 1024), lo=1)
     if folder is None and ref_spp <= spp[-1]:
         raise ctx.error("render.ref_spp", f"must exceed the highest level {spp[-1]}, got {ref_spp}")
-    from mcdenoise.render.config import VARIANT_CHOICES
 
     variant = _str(ctx, "render.variant", render.get("variant", "auto"))
     if variant not in VARIANT_CHOICES:
@@ -654,7 +463,6 @@ def parse_experiment(
                 raise ctx.error(f"report.budgets[{j}]", f"must be seconds > 0, got {b!r}")
         budgets = tuple(sorted(float(b) for b in raw_b))
     outputs = _str(ctx, "report.outputs", report.get("outputs", "all"))
-    from mcdenoise.eval.temporal_metrics import WARMUP_FRAMES
 
     warmup_frames = _int(
         ctx, "report.warmup_frames", report.get("warmup_frames", WARMUP_FRAMES), lo=0
@@ -699,120 +507,6 @@ def parse_experiment(
         warmup_frames=warmup_frames,
         externals=externals,
     )
-
-
-def _externals(ctx: _Ctx, value: Any) -> tuple[External, ...]:
-    """``[[external]]`` entries, checked and registered (:func:`mcdenoise.registry.add_command`)
-    under their names, so the rest of the spec can name them."""
-    if isinstance(value, Mapping):
-        value = [value]  # `[external]` (one table) read as one entry
-    if not isinstance(value, Sequence) or isinstance(value, str):
-        raise ctx.error("external", "must be a list of [[external]] tables")
-    from mcdenoise.registry import add_command, aliases, methods
-
-    builtin = {m.name for m in methods()} | set(aliases()) | {NOISY}
-    out: list[External] = []
-    for i, raw in enumerate(value):
-        key = f"external[{i}]"
-        entry = _table(ctx, key, raw, _EXTERNAL_KEYS)
-        for required in ("name", "command"):
-            if required not in entry:
-                raise ctx.error(f"{key}.{required}", "missing")
-        name = _str(ctx, f"{key}.name", entry["name"])
-        if name in builtin:
-            raise ctx.error(f"{key}.name", f"{name!r} is a built-in method; choose another name")
-        if name.startswith("cmd:") or any(c in name for c in "[]"):
-            raise ctx.error(f"{key}.name", f"{name!r}: a name may not start with 'cmd:' or hold []")
-        if any(e.name == name for e in out):
-            raise ctx.error(f"{key}.name", f"{name!r} names two [[external]] entries")
-        command = spec_relative(ctx.base, _str(ctx, f"{key}.command", entry["command"]))
-        timeout = entry.get("timeout")
-        if timeout is not None and (
-            isinstance(timeout, bool)
-            or not isinstance(timeout, int | float)
-            or not math.isfinite(timeout)
-            or timeout <= 0
-        ):
-            raise ctx.error(f"{key}.timeout", f"must be seconds > 0, got {timeout!r}")
-        try:
-            add_command(command, name=name)
-        except McdenoiseError as err:
-            raise ctx.error(key, " ".join(str(err).split())) from None
-        out.append(External(name, command, None if timeout is None else float(timeout)))
-    return tuple(out)
-
-
-def _metric_names(ctx: _Ctx, raw: Sequence[str], frames: int | None) -> tuple[str, ...]:
-    """The spec's metrics: still ones (parts added), and temporal ones for sequences; relMSE
-    (and for sequences temporal relMSE) required, since the curves and tables use them."""
-    from mcdenoise.eval.metrics import resolve_metrics
-    from mcdenoise.eval.temporal_metrics import is_temporal, resolve_sequence_metrics
-
-    try:
-        if frames is None:
-            temporal = [m for m in raw if is_temporal(m.lower())]
-            if temporal:
-                raise ctx.error(
-                    "metrics",
-                    f"temporal metric(s) {', '.join(temporal)} need sequences "
-                    "([render] frames = N)",
-                )
-            metrics = tuple(resolve_metrics(raw))
-        else:
-            metrics = tuple(resolve_sequence_metrics(raw))
-    except ExperimentError:
-        raise
-    except McdenoiseError as err:
-        raise ctx.error("metrics", str(err)) from None
-    if "relmse" not in metrics:
-        raise ctx.error("metrics", "must include relmse (the curves and tables use it)")
-    if frames is not None and "trelmse" not in metrics:
-        raise ctx.error(
-            "metrics", "must include trelmse for sequences (the temporal tables use it)"
-        )
-    return metrics
-
-
-def _animate(
-    ctx: _Ctx, value: Any, specs: Sequence[Path], frames: int | None
-) -> dict[str, dict[str, Any]]:
-    """``[scenes.animate.<name>]``: per scene spec name, an ``animation`` table and a ``move``
-    list (``{object, translate}``), checked for shape here and merged into the scene spec
-    (validated by the render spec parser) when the jobs are made
-    (:func:`mcdenoise.experiments.dataset.render_jobs`)."""
-    table = _table(ctx, "scenes.animate", value)
-    if not table:
-        return {}
-    if frames is None:
-        raise ctx.error("scenes.animate", "only for sequences: set [render] frames = N")
-    from mcdenoise.render.scene_spec import SpecError, load_spec
-
-    names: dict[str, Any] = {}
-    for p in specs:
-        try:
-            names[load_spec(p).name] = p
-        except SpecError as err:
-            raise ctx.error("scenes.specs", str(err)) from None
-    out: dict[str, dict[str, Any]] = {}
-    for name, raw in table.items():
-        key = f"scenes.animate.{name}"
-        if name not in names:
-            known = ", ".join(names) or "none"
-            raise ctx.error(key, f"no scene spec named {name!r} (scenes: {known})")
-        entry = dict(_table(ctx, key, raw, _ANIMATE_KEYS))
-        if "animation" in entry:
-            entry["animation"] = dict(_table(ctx, f"{key}.animation", entry["animation"]))
-        moves = []
-        for j, m in enumerate(entry.get("move", [])):
-            mt = _table(ctx, f"{key}.move[{j}]", m, _MOVE_KEYS)
-            if "object" not in mt or "translate" not in mt:
-                raise ctx.error(f"{key}.move[{j}]", "needs object (an index) and translate")
-            _int(ctx, f"{key}.move[{j}].object", mt["object"], lo=0)
-            moves.append(dict(mt))
-        if "move" in entry:
-            entry["move"] = moves
-        out[str(name)] = entry
-    return out
 
 
 def load_experiment(

@@ -28,9 +28,13 @@ from typing import Any
 import numpy as np
 
 from mcdenoise.errors import McdenoiseError
+from mcdenoise.eval.eval_report import write_png
+from mcdenoise.eval.tonemap import auto_exposure, display, to_uint8
 from mcdenoise.experiments.htmlkit import esc, g, img, sec, slug, sub, table
+from mcdenoise.experiments.plots import plot_error_vs_time
 from mcdenoise.experiments.sequence_units import TEMPORAL_OVERALL, frame_name, temporal_rows
-from mcdenoise.experiments.spec import NOISY
+from mcdenoise.experiments.spec_fields import NOISY
+from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import atomic_path
 
 #: Frames per second of the animated strips (12–16 frames play in 3–4 s).
@@ -105,7 +109,6 @@ def _frame_count(result: Any) -> str:
 
 
 def _plots(result: Any, rows: Sequence[dict[str, Any]], out: Path) -> str:
-    from mcdenoise.experiments.plots import plot_error_vs_time
 
     names = []
     for key, label, name in (
@@ -182,7 +185,6 @@ def scene_table(result: Any, scene: Any) -> str:
 
 def _frames_of(result: Any, scene: Any, label: str, spp: int, out: Path) -> list[np.ndarray] | None:
     """The ``(3, H, W)`` frames of ``label`` at ``spp`` (``None``: not kept or failed)."""
-    from mcdenoise.io import load_buffers
 
     if label == NOISY:
         return [load_buffers(n, part=f"spp{spp}")["color"].numpy() for n, _ in scene.frames]
@@ -199,9 +201,6 @@ def _frames_of(result: Any, scene: Any, label: str, spp: int, out: Path) -> list
 
 def scene_images(result: Any, scene: Any, index: int, out: Path) -> str:
     """x–t slices and the animated strip of one sequence at the strip level (module doc)."""
-    from mcdenoise.eval.eval_report import write_png
-    from mcdenoise.eval.tonemap import auto_exposure, display, to_uint8
-    from mcdenoise.io import load_buffers
 
     spp = result.strip_spp
     refs = [load_buffers(r)["color"].numpy() for _, r in scene.frames]
@@ -296,7 +295,7 @@ def _wh(w: int, h: int) -> str:
 def animation_writer() -> str:
     """``"apng"`` when Pillow can write animated PNGs here, else ``"gif"`` (OpenImageIO)."""
     try:
-        from PIL import Image  # noqa: F401
+        from PIL import Image  # noqa: F401  # lazy: optional, see except
     except ImportError:
         return "gif"
     return "apng"
@@ -315,7 +314,7 @@ def write_animation(base: Path, frames: Sequence[np.ndarray], *, fps: int) -> Pa
         raise McdenoiseError(f"{base}: an animation needs at least one frame")
     delay_ms = round(1000 / fps)
     if animation_writer() == "apng":
-        from PIL import Image
+        from PIL import Image  # lazy: Pillow only where a GIF is written
 
         path = base.with_suffix(".png")
         images = [Image.fromarray(np.ascontiguousarray(f), "RGB") for f in frames]
@@ -336,7 +335,7 @@ def write_animation(base: Path, frames: Sequence[np.ndarray], *, fps: int) -> Pa
 
 def _write_gif(path: Path, frames: Sequence[np.ndarray], fps: int) -> Path:
     """An animated GIF through OpenImageIO: one subimage per frame, ``fps``, looping."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: OpenImageIO only where an image is written
 
     h, w = frames[0].shape[:2]
     spec = oiio.ImageSpec(w, h, 3, oiio.UINT8)

@@ -28,6 +28,9 @@ from typing import Any, TypeVar
 
 import torch
 
+from mcdenoise.errors import McdenoiseError
+from mcdenoise.registry import get_method, is_command
+
 T = TypeVar("T")
 
 #: ``timing`` of a method timed in this process (the method's own work only).
@@ -44,8 +47,6 @@ def timing_clock(method: str) -> str | None:
     >>> timing_clock("noisy") is None, timing_clock("nlm")
     (True, 'in-process')
     """
-    from mcdenoise.errors import McdenoiseError
-    from mcdenoise.registry import get_method, is_command
 
     if method == "noisy":
         return None

@@ -25,7 +25,8 @@ from mcdenoise.filters.cross_bilateral import CrossBilateral, cross_bilateral
 from mcdenoise.filters.kernels import Window, accumulate_weighted, apply_kernels
 from mcdenoise.filters.nlm import NonLocalMeans, non_local_means
 from mcdenoise.filters.settings import GUIDE_FEATURES, NlmSettings, XbfSettings
-from mcdenoise.filters.svgf import Svgf, SvgfSettings
+from mcdenoise.filters.svgf import Svgf
+from mcdenoise.filters.svgf_guides import SvgfSettings
 from mcdenoise.filters.warp import warp
 
 __all__ = [

@@ -32,12 +32,12 @@ _EXPORTS: dict[str, str] = {
     "ExrChannel": "mcdenoise.io.exr",
     "ExrImage": "mcdenoise.io.exr",
     "ExrPart": "mcdenoise.io.exr",
-    "ExrPartData": "mcdenoise.io.exr",
-    "WriteReport": "mcdenoise.io.exr",
+    "ExrPartData": "mcdenoise.io.exr_write",
+    "WriteReport": "mcdenoise.io.exr_write",
     "probe_exr": "mcdenoise.io.exr",
     "read_exr": "mcdenoise.io.exr",
-    "write_exr": "mcdenoise.io.exr",
-    "write_exr_parts": "mcdenoise.io.exr",
+    "write_exr": "mcdenoise.io.exr_write",
+    "write_exr_parts": "mcdenoise.io.exr_write",
     # info
     "BufferInfo": "mcdenoise.io.info",
     "FileInfo": "mcdenoise.io.info",
@@ -119,17 +119,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
         MissingFeatureError,
         sanitize,
     )
-    from mcdenoise.io.exr import (
-        ExrChannel,
-        ExrImage,
-        ExrPart,
-        ExrPartData,
-        WriteReport,
-        probe_exr,
-        read_exr,
-        write_exr,
-        write_exr_parts,
-    )
+    from mcdenoise.io.exr import ExrChannel, ExrImage, ExrPart, probe_exr, read_exr
+    from mcdenoise.io.exr_write import ExrPartData, WriteReport, write_exr, write_exr_parts
     from mcdenoise.io.info import BufferInfo, FileInfo, describe
     from mcdenoise.io.profiles import (
         PROFILE_NAMES,

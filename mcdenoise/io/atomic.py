@@ -33,10 +33,13 @@ import shutil
 import socket
 import tempfile
 import time
+import zipfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from mcdenoise.errors import McdenoiseError, WriteError
+from mcdenoise.io.exr_layout import check_complete
+from mcdenoise.io.limits import format_bytes
 
 #: Prefix of temporary files; ``.gitignore`` and folder scans skip names starting with it.
 TMP_PREFIX = ".mcdenoise-tmp-"
@@ -114,7 +117,6 @@ def room_note(folder: str | os.PathLike[str]) -> str:
         return ""
     if free >= _LOW_ROOM:
         return ""
-    from mcdenoise.io.limits import format_bytes
 
     return f"; only {format_bytes(free)} free on that disk" if free else "; that disk is full"
 
@@ -152,13 +154,11 @@ def _ends_with(trailer: bytes, what: str) -> Callable[[Path], None]:
 
 
 def _check_exr(path: Path) -> None:
-    from mcdenoise.io.exr_layout import check_complete
 
     check_complete(path)
 
 
 def _check_zip(path: Path) -> None:
-    import zipfile
 
     if not zipfile.is_zipfile(path):  # torch.save writes a zip archive; its directory is last
         raise OSError(0, f"the file written is incomplete ({path.stat().st_size} bytes)")

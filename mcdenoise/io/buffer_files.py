@@ -39,16 +39,8 @@ import torch
 
 from mcdenoise.errors import ExrError, InputError
 from mcdenoise.io.buffers import FeatureBuffers, base_feature, halves_problem
-from mcdenoise.io.exr import (
-    ExrPart,
-    ExrPartData,
-    WriteReport,
-    probe_exr,
-    read_exr,
-    select_part,
-    write_exr,
-    write_exr_parts,
-)
+from mcdenoise.io.exr import ExrPart, probe_exr, read_exr, select_part
+from mcdenoise.io.exr_write import ExrPartData, WriteReport, write_exr, write_exr_parts
 from mcdenoise.io.limits import check_pixel_limit, check_read_size
 from mcdenoise.io.profiles import (
     BLENDER_ATTR,
@@ -307,12 +299,12 @@ def save_buffers(
         buffers: what to write; tensors ``(C, H, W)`` on any device (copied to CPU float32).
         half: store every buffer (``True``) or the named buffers as half floats; finite
             values beyond +/-65504 are clamped and counted in the report.
-        compression: EXR compression (see :data:`mcdenoise.io.exr.COMPRESSIONS`).
+        compression: EXR compression (see :data:`mcdenoise.io.exr_write.COMPRESSIONS`).
         attributes: extra header attributes (e.g. ``mcdenoise:method``); ``mcdenoise:*``
             attributes already on ``buffers`` are kept, these override them.
 
     Returns:
-        The :class:`~mcdenoise.io.exr.WriteReport`.
+        The :class:`~mcdenoise.io.exr_write.WriteReport`.
 
     The header gets ``mcdenoise:layout`` and, when known, ``mcdenoise:spp``. The data and
     display windows of ``buffers`` are written as they are (their size must match).
@@ -354,7 +346,7 @@ def save_buffers_parts(
         part_attributes: part name -> attributes of that part only (override ``attributes``).
 
     Returns:
-        One :class:`~mcdenoise.io.exr.WriteReport` per part, in order.
+        One :class:`~mcdenoise.io.exr_write.WriteReport` per part, in order.
 
     Raises:
         InputError: no parts, an empty part, parts of different display windows, unknown

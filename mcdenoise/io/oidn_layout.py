@@ -45,8 +45,10 @@ import torch
 
 from mcdenoise.errors import InputError
 from mcdenoise.io.atomic import TMP_PREFIX
+from mcdenoise.io.buffer_files import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.io.exr import probe_exr, read_exr, write_exr
+from mcdenoise.io.exr import probe_exr, read_exr
+from mcdenoise.io.exr_write import write_exr
 
 #: The file names OIDN's toolkit reads (doc/training.md), with named groups.
 OIDN_NAME = re.compile(
@@ -216,7 +218,6 @@ def write_oidn_layout(
         InputError: no ``manifest.json`` or an unreadable one, a folder of sequences, a file
             of the manifest missing.
     """
-    from mcdenoise.io.buffer_files import load_buffers
 
     src, out = Path(dataset_dir), Path(out_dir)
     manifest_path = src / "manifest.json"

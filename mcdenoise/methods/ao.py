@@ -130,6 +130,16 @@ def gbuffer_for(
     return g, float(cam.ao_radius)
 
 
+#: One-thread CPU speeds (:attr:`~mcdenoise.method.Method.recorded_speed`) from
+#: ``benchmarks/bench_ao.py --speed`` (docs/results/threads.md).
+AO_SPEED = {
+    "ssao": (0.011, 2.01),
+    "hbao": (0.012, 2.37),
+    "alchemy": (0.005, 1.14),
+    "gtao": (0.012, 3.31),
+}
+
+
 def _method(
     name: str, estimator: Callable[..., Tensor], summary: str, own: dict[str, Any]
 ) -> Method:
@@ -145,6 +155,7 @@ def _method(
         run=run,
         priority=PRIORITY,
         check_input=_check,
+        recorded_speed={name: AO_SPEED[name]},
     )
 
 

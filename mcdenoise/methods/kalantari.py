@@ -208,6 +208,14 @@ def _runner(kind: str) -> Callable[[FeatureBuffers, Mapping[str, Any], torch.dev
     return run
 
 
+#: One-thread speeds (:attr:`~mcdenoise.method.Method.recorded_speed`); with ``select`` on an
+#: input with halves the filter runs 42 times (docs/results/threads.md, docs/results/nfor.md).
+RECORDED_SPEED = {
+    "xbf": {"kalantari-xbf": (0.0361, 14.4), "kalantari-xbf+select": (0.0361, 1806.0)},
+    "nlm": {"kalantari-nlm": (0.0622, 11.0), "kalantari-nlm+select": (0.0622, 1750.0)},
+}
+
+
 def _method(kind: str, what: str, priority: int) -> Method:
     # With a shipped no-albedo variant, inputs without albedo (AO renders) are served too.
     needs = GUIDE_FEATURES
@@ -229,6 +237,7 @@ def _method(kind: str, what: str, priority: int) -> Method:
         priority=priority,
         check_input=_checker(kind),
         speed_key=lambda p: f"kalantari-{kind}" + ("" if select_mode(p) == "off" else "+select"),
+        recorded_speed=RECORDED_SPEED[kind],
     )
 
 

@@ -231,6 +231,7 @@ METHOD = Method(
     run=_run,
     priority=3,
     check_input=_check,
+    recorded_speed={"nfor": (0.15, 543.0)},  # CPU time (docs/results/nfor.md)
 )
 
 __all__ = ["FEATURES", "METHOD", "denoise_nfor", "missing_halves"]

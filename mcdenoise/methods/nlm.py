@@ -110,6 +110,7 @@ METHOD = Method(
     },
     run=_run,
     priority=20,
+    recorded_speed={"nlm": (0.049, 9.24)},
 )
 
 __all__ = ["METHOD", "PATCH_TRIM", "VARIANCE_PRIOR", "VAR_CAP", "denoise_nlm"]

@@ -132,6 +132,7 @@ METHOD = Method(
     run=_run,
     priority=PRIORITY,
     check_input=_check,
+    recorded_speed={"nnao": (0.003, 3.16)},  # CPU time, with its blur (docs/results/threads.md)
 )
 
 __all__ = ["METHOD", "gbuffer_for", "load_nnao", "nnao", "nnao_inputs"]

@@ -3,7 +3,7 @@
 A temporal method (:attr:`~mcdenoise.method.Method.temporal`): ``run_sequence`` keeps the
 history of :class:`~mcdenoise.filters.svgf.Svgf` from one frame to the next (the algorithm,
 its Falcor reference and the deviations are in :mod:`mcdenoise.filters.svgf`). Its
-parameters are :class:`~mcdenoise.filters.svgf.SvgfSettings`.
+parameters are :class:`~mcdenoise.filters.svgf_guides.SvgfSettings`.
 
 Buffers: it requires only ``color`` and uses ``albedo`` (demodulation), ``depth`` and
 ``normal`` (edge-stopping and the reprojection tests), ``motion`` and ``motion_valid``, and
@@ -43,7 +43,8 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.filters.parallel import single_threaded_ops
-from mcdenoise.filters.svgf import Svgf, SvgfSettings, with_overrides
+from mcdenoise.filters.svgf import Svgf
+from mcdenoise.filters.svgf_guides import SvgfSettings, with_overrides
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method, dataclass_defaults
 from mcdenoise.prep.inputs import PREFILTER, PREFILTER_ESTIMATED, prefilter_feature
@@ -142,6 +143,7 @@ METHOD = Method(
     priority=5,
     temporal=True,
     run_sequence=_run_sequence,
+    recorded_speed={"svgf": (0.049, 5.19)},  # the first frame (spatial à-trous only)
 )
 
 __all__ = ["METHOD", "USES", "denoise_svgf_sequence"]

@@ -21,6 +21,7 @@ from torch import Tensor
 
 from mcdenoise.errors import InputError
 from mcdenoise.models.auxnet import KINDS, AuxNet, net_inputs
+from mcdenoise.models.weights import load_auxnet, shipped_model_path
 from mcdenoise.prep.aux_prefilter import mixing_mask, prefilter_aux
 from mcdenoise.prep.inputs import estimate_feature_variance, exposure_scale
 
@@ -38,7 +39,6 @@ def shipped_auxnet() -> AuxNet:
     Raises:
         InputError: this install has none.
     """
-    from mcdenoise.models.weights import load_auxnet, shipped_model_path
 
     path = shipped_model_path("auxnet")
     if not path.is_file():

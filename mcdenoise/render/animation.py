@@ -78,6 +78,7 @@ import torch.nn.functional as F
 from mcdenoise.errors import InputError
 from mcdenoise.render.effects import EffectPlan
 from mcdenoise.render.scene_spec import Animation, Camera, SceneSpec, SpecError
+from mcdenoise.render.scenes import camera_to_world, scene_dict
 
 #: Default camera path of a sequence whose spec has no ``[animation]``: an orbit of this many
 #: degrees per frame about the target (``N - 1`` degrees over ``N`` frames).
@@ -226,7 +227,6 @@ def spec_at(spec: SceneSpec, s: float) -> SceneSpec:
 # Projection
 # --------------------------------------------------------------------------------------------
 def _world_to_camera(camera: Camera) -> np.ndarray:
-    from mcdenoise.render.scenes import camera_to_world
 
     return np.linalg.inv(camera_to_world(camera))
 
@@ -272,7 +272,6 @@ def _film(local: np.ndarray, camera: Camera, width: int, height: int) -> tuple[A
 
 def pixel_directions(camera: Camera, width: int, height: int) -> np.ndarray:
     """World direction (unit) of the ray through each pixel centre: ``(H, W, 3)``."""
-    from mcdenoise.render.scenes import camera_to_world
 
     f = _film_scale(camera, width)
     u = np.arange(width, dtype=np.float64) + 0.5
@@ -316,7 +315,6 @@ def geometry_scene_dict(
     no emitters), object ``i`` with a diffuse BSDF of reflectance ``(i + 1) / ID_SCALE``, an
     ``aov`` integrator (``position``, ``albedo``) and an un-jittered 1-spp ``stratified``
     sampler, so each pixel holds exactly its centre ray's hit."""
-    from mcdenoise.render.scenes import scene_dict
 
     if len(spec.objects) >= ID_SCALE - 1:
         raise InputError(f"the geometry pass supports < {int(ID_SCALE) - 1} objects")
@@ -348,7 +346,7 @@ def render_geometry(
     """Trace one ray through each pixel centre of ``camera`` (Mitsuba variant already set,
     see :func:`mcdenoise.render.scenes.ensure_variant`); ``spec`` with objects where they are
     in this frame (:func:`spec_at`)."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 
     try:
         scene = mi.load_dict(geometry_scene_dict(spec, plan, camera, width, height))

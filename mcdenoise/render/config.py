@@ -17,6 +17,7 @@ from typing import Any
 
 from mcdenoise.errors import McdenoiseError
 from mcdenoise.progress import Mode
+from mcdenoise.render.animation import check_frames
 
 #: Largest number of samples per pixel of one render call (one pass).
 DEFAULT_PASS_SPP = 128
@@ -85,8 +86,6 @@ class RenderConfig:
         if not isinstance(self.halves, bool):
             raise RenderError(f"halves must be True or False, got {self.halves!r}")
         if self.frames is not None:
-            from mcdenoise.render.animation import check_frames
-
             try:
                 check_frames(self.frames)
             except McdenoiseError as err:

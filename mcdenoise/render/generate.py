@@ -50,12 +50,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcdenoise.errors import McdenoiseError
+from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.progress import progress_bar
+from mcdenoise.render import animation as sq
 from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.effects import plan_effects
-from mcdenoise.render.jobs import ImageJob, frame_seed
+from mcdenoise.render.jobs import ImageJob, frame_seed, make_jobs
 from mcdenoise.render.layout import (
     camera_record,
+    export_samples,
     frame_complete,
     image_complete,
     image_record,
@@ -74,6 +77,8 @@ from mcdenoise.render.manifest import (
     write_shard_manifest,
 )
 from mcdenoise.render.passes import render_image
+from mcdenoise.render.scene_spec import collect_specs
+from mcdenoise.render.scenes import ensure_variant
 
 
 @dataclass
@@ -93,7 +98,7 @@ class GenerateResult:
 
 def _require_mitsuba() -> None:
     try:
-        import mitsuba  # noqa: F401
+        import mitsuba  # noqa: F401  # lazy: optional, see except
     except ImportError:
         raise RenderError(
             "mcdenoise render needs Mitsuba 3: pip install 'mcdenoise[render]'"
@@ -101,7 +106,6 @@ def _require_mitsuba() -> None:
 
 
 def _select_variant(requested: str) -> str:
-    from mcdenoise.render.scenes import ensure_variant
 
     try:
         return ensure_variant(requested)
@@ -162,7 +166,6 @@ def generate(jobs: Sequence[ImageJob], config: RenderConfig) -> GenerateResult:
         if todo:
             _require_mitsuba()
             result.variant = _select_variant(config.variant)
-            from mcdenoise.progress import progress_bar
 
             if config.frames is None:
                 with progress_bar(
@@ -211,10 +214,6 @@ def render_dataset(
         InputError: neither specs nor ``random``.
         SpecError, RenderError: as :func:`generate` and the spec loaders.
     """
-    from mcdenoise.errors import InputError
-    from mcdenoise.render.jobs import make_jobs
-    from mcdenoise.render.layout import export_samples
-    from mcdenoise.render.scene_spec import collect_specs
 
     if not paths and random is None:
         raise InputError("nothing to render: give SPEC.toml files (or folders) or --random N")
@@ -235,7 +234,6 @@ def _render_sequences(
 ) -> None:
     """The per-frame loop of :func:`generate`: the shard manifest is rewritten after every
     frame, so an interrupted sequence resumes at its first missing frame."""
-    from mcdenoise.progress import progress_bar
 
     assert config.frames is not None and result.variant is not None
     out, (i, n) = config.out, config.shard
@@ -285,9 +283,7 @@ def render_sequence(
     frames it records whose files are complete are kept, not rendered again. ``on_frame`` is
     called with the (incomplete) record after every frame written.
     """
-    import mitsuba as mi
-
-    from mcdenoise.render import animation as sq
+    import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 
     if config.frames is None:
         raise RenderError("render_sequence needs config.frames")

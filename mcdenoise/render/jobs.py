@@ -40,7 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from mcdenoise.render.config import RenderError, check_spp_levels
-from mcdenoise.render.scene_spec import SceneSpec
+from mcdenoise.render.scene_spec import SceneSpec, load_spec
 
 _SEED_MOD = 2**31
 
@@ -97,7 +97,9 @@ def jobs_from_random(
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:
         raise RenderError(f"--random must be an integer >= 1, got {count!r}")
     try:
-        from mcdenoise.render.random_scenes import random_spec
+        from mcdenoise.render.random_scenes import (  # lazy: optional, see except
+            random_spec,
+        )
     except ImportError:
         raise RenderError(
             "--random needs mcdenoise.render.random_scenes, which this installation lacks"
@@ -119,7 +121,6 @@ def make_jobs(
         SpecError: a spec file that cannot be read or is invalid.
         RenderError: ``random`` is not an integer >= 1, or the generator is missing.
     """
-    from mcdenoise.render.scene_spec import load_spec
 
     jobs = jobs_from_specs([load_spec(f) for f in spec_files], seed=seed)
     if random is not None:

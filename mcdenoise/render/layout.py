@@ -50,11 +50,15 @@ from typing import Any
 import torch
 
 from mcdenoise.errors import McdenoiseError
+from mcdenoise.io.buffer_files import load_buffers, save_buffers, save_buffers_parts
+from mcdenoise.io.exr import probe_exr
 from mcdenoise.render.config import RenderConfig, RenderError
 from mcdenoise.render.effects import EffectPlan
 from mcdenoise.render.jobs import ImageJob
+from mcdenoise.render.manifest import load_manifest
 from mcdenoise.render.passes import RenderedImage
 from mcdenoise.render.scene_spec import Camera, SceneSpec
+from mcdenoise.render.scenes import camera_metadata, far_clip
 
 
 def noisy_file(image_id: str) -> str:
@@ -72,7 +76,6 @@ def reference_file(image_id: str) -> str:
 def write_image(rendered: RenderedImage, config: RenderConfig) -> dict[str, Any]:
     """Write ``<id>.exr`` (one part per level) and ``ref/<id>.exr`` atomically into
     ``config.out``; return the image's manifest record."""
-    from mcdenoise.io.buffer_files import save_buffers, save_buffers_parts
 
     job = rendered.job
     out = config.out
@@ -101,7 +104,6 @@ def image_record(
 ) -> dict[str, Any]:
     """The manifest fields an image and a sequence share (``camera``: the spec's camera with
     its matrix, clip planes and AO radius, :func:`mcdenoise.render.scenes.camera_metadata`)."""
-    from mcdenoise.render.scenes import camera_metadata, far_clip
 
     return {
         "id": job.id,
@@ -147,7 +149,6 @@ def write_frame(
     buffers added to every part (``motion``, ``motion_valid``, ``motion_next``,
     ``motion_next_valid``: name -> ``(C, H, W)``), atomically; return the files (relative to
     ``config.out``)."""
-    from mcdenoise.io.buffer_files import save_buffers, save_buffers_parts
 
     files = {
         "noisy": frame_file(sequence_id, frame),
@@ -188,7 +189,6 @@ def camera_record(camera: Camera) -> dict[str, Any]:
 def image_complete(out: Path, record: Mapping[str, Any]) -> bool:
     """``record``'s files exist and the noisy file holds every level's part (a sequence: see
     :func:`sequence_complete`); what resume trusts."""
-    from mcdenoise.io.exr import probe_exr
 
     if "sequence" in record:
         return sequence_complete(out, record)
@@ -260,8 +260,6 @@ def export_samples(folder: str | os.PathLike[str], out: str | os.PathLike[str]) 
         RenderError: ``folder`` holds sequences, or a feature exceeds the half range.
         ManifestError: ``folder`` has no readable manifest.
     """
-    from mcdenoise.io.buffer_files import load_buffers, save_buffers
-    from mcdenoise.render.manifest import load_manifest
 
     src, dst = Path(folder), Path(out)
     written: list[Path] = []

@@ -79,7 +79,7 @@ def latest_records(records: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, 
 def _folder_lock(out: Path) -> Iterator[None]:
     """An exclusive ``flock`` on ``out/.manifest.lock`` (a no-op where flock is missing)."""
     try:
-        import fcntl
+        import fcntl  # lazy: optional, see except
     except ImportError:  # pragma: no cover - not POSIX
         yield
         return

@@ -161,7 +161,7 @@ def moments_from_film(
 def render_moments(scene: Any, spp: int, seed: int, features: Sequence[str]) -> Moments:
     """Render ``scene`` (integrator from :func:`moment_integrator`) once with ``spp`` samples
     per pixel and sampler ``seed``; return the moments of colour and ``features``."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 
     if spp < 1:
         raise InputError(f"spp must be >= 1, got {spp}")

@@ -56,6 +56,7 @@ from mcdenoise.render.moments import (
     render_moments,
 )
 from mcdenoise.render.scene_spec import Camera
+from mcdenoise.render.scenes import camera_metadata, far_clip, load_scene, scene_dict
 
 
 @dataclass
@@ -85,7 +86,7 @@ class _JitClock:
         self._dr: Any = None
         self._previous = False
         if self.enabled:
-            import drjit as dr
+            import drjit as dr  # lazy: Mitsuba is optional and slow to import
 
             self._dr = dr
             self._previous = bool(dr.flag(dr.JitFlag.KernelHistory))
@@ -200,7 +201,6 @@ def _jit_total(passes: Sequence[Mapping[str, Any]]) -> dict[str, float]:
 def _load_scene(
     job: ImageJob, plan: EffectPlan, config: RenderConfig, camera: Camera | None = None
 ) -> Any:
-    from mcdenoise.render.scenes import load_scene, scene_dict
 
     d = scene_dict(
         job.spec,
@@ -235,14 +235,13 @@ def render_image(
     Returns float32 buffers ``(C, H, W)``: colour in linear HDR RGB, features as in
     :mod:`mcdenoise.render.moments`, each with its variance of the mean.
     """
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 
     if mi.variant() != variant:
         raise RenderError(
             f"render_image: Mitsuba variant {mi.variant()!r} is set, not {variant!r} "
             "(call mcdenoise.render.scenes.ensure_variant first)"
         )
-    from mcdenoise.render.scenes import camera_metadata, far_clip
 
     plan = plan_effects(job.spec)
     t0 = time.perf_counter()

@@ -78,6 +78,7 @@ import numpy as np
 
 from mcdenoise.errors import InputError
 from mcdenoise.render.effects import EffectPlan
+from mcdenoise.render.integrators import register_integrators
 from mcdenoise.render.procedural import NOISE_CELLS, noise_image, sky_image
 from mcdenoise.render.scene_spec import (
     Camera,
@@ -147,9 +148,7 @@ def ensure_variant(requested: str = "auto") -> str:
     Raises:
         InputError: unknown variant, not compiled into this Mitsuba, or not working here.
     """
-    import mitsuba as mi
-
-    from mcdenoise.render.integrators import register_integrators
+    import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 
     if requested == "auto":
         candidates = [v for v in VARIANTS if v in mi.variants()]
@@ -185,7 +184,7 @@ def _works(variant: str) -> bool:
 
 
 def _mi() -> Any:
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 
     if mi.variant() is None:
         raise InputError("no Mitsuba variant is set: call ensure_variant() first")
@@ -203,7 +202,7 @@ LOAD_THREADS = 2
 def load_scene(d: dict[str, Any]) -> Any:
     """``mi.load_dict(d)`` with at least :data:`LOAD_THREADS` Dr.Jit threads during the load
     (the caller's thread count is restored afterwards)."""
-    import drjit as dr
+    import drjit as dr  # lazy: Mitsuba is optional and slow to import
 
     mi = _mi()
     before = int(dr.thread_count())
@@ -377,7 +376,7 @@ def texture_dict(t: Texture) -> dict[str, Any]:
 @functools.cache
 def conductor_names() -> frozenset[str]:
     """Conductor presets of the installed Mitsuba (``Au``, ``Ag``, ``Cu``, ..., ``none``)."""
-    import mitsuba
+    import mitsuba  # lazy: Mitsuba is optional and slow to import
 
     folder = Path(mitsuba.__file__).parent / "data" / "ior"
     return frozenset({p.name.split(".")[0] for p in folder.glob("*.eta.spd")} | {"none"})
@@ -577,7 +576,9 @@ def _light(
         return d, 0
     if typ == "sh":
         try:
-            from mcdenoise.render.sh import sh_envmap_dict
+            from mcdenoise.render.sh import (  # lazy: optional, see except
+                sh_envmap_dict,
+            )
         except ImportError as err:
             raise SpecError(f"{where}: SH environments need mcdenoise.render.sh ({err})") from None
         return sh_envmap_dict(np.asarray(p["coefficients"], dtype=np.float64), scale=p["scale"]), 0

@@ -327,7 +327,7 @@ def sh_envmap_dict(coeffs: np.ndarray, scale: float = 1.0, width: int = 128) -> 
     ``mi.Bitmap`` (float32 linear RGB); ``scale`` multiplies the radiance. Needs a Mitsuba
     variant to be set.
     """
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 
     if mi.variant() is None:
         raise McdenoiseError("sh_envmap_dict: set a Mitsuba variant first (mi.set_variant)")

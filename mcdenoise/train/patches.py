@@ -42,6 +42,12 @@ from mcdenoise.errors import InputError, McdenoiseError
 from mcdenoise.io import load_buffers
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.io.exr import probe_exr
+from mcdenoise.io.oidn_layout import (
+    find_oidn_images,
+    is_oidn_tree,
+    parse_oidn_name,
+    read_oidn_level,
+)
 from mcdenoise.losses import relmse, relmse_map
 from mcdenoise.progress import Mode, progress_bar
 
@@ -84,7 +90,6 @@ def _spp_of(part: str | None) -> int | None:
 def _read(path: Path, part: str | None) -> FeatureBuffers:
     """A level or reference: an OIDN-layout file (``*_0004spp.hdr.exr`` with its ``.alb`` /
     ``.nrm``) through :func:`mcdenoise.io.oidn_layout.read_oidn_level`, else the EXR."""
-    from mcdenoise.io.oidn_layout import parse_oidn_name, read_oidn_level
 
     return read_oidn_level(path) if parse_oidn_name(path.name) else load_buffers(path, part=part)
 
@@ -119,8 +124,6 @@ def scan_dataset(root: str | os.PathLike[str], levels: Sequence[int] = ()) -> li
                 continue
             entries.append(Entry(image, path, part, ref, spp))
     if not entries:
-        from mcdenoise.io.oidn_layout import find_oidn_images, is_oidn_tree
-
         if is_oidn_tree(base):  # OIDN's training layout: <name>_0004spp.hdr.exr + _ref.hdr.exr
             for im in find_oidn_images(base):
                 for spp, hdr in im.levels.items():

@@ -13,7 +13,8 @@ from fast_methods import run_cli as run
 
 from mcdenoise.eval import metrics as M
 from mcdenoise.io import load_buffers
-from mcdenoise.io.exr import probe_exr, write_exr
+from mcdenoise.io.exr import probe_exr
+from mcdenoise.io.exr_write import write_exr
 
 CYCLES = Path(__file__).resolve().parents[1] / "io" / "data" / "cycles_32" / "cycles_spp4.exr"
 H = W = 32

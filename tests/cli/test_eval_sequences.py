@@ -19,8 +19,8 @@ from mcdenoise.eval import (
     temporal_relmse,
 )
 from mcdenoise.eval.temporal_metrics import TEMPORAL_METRICS
-from mcdenoise.io import exr
-from mcdenoise.io.exr import ExrPartData
+from mcdenoise.io import exr_write
+from mcdenoise.io.exr_write import ExrPartData
 
 H, W = 12, 14
 FRAMES = 5
@@ -40,12 +40,12 @@ def ref_frames(n: int = FRAMES) -> list[np.ndarray]:
 
 def write_exr(path: Path, channels: dict, **kw) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    exr.write_exr(path, channels, **kw)
+    exr_write.write_exr(path, channels, **kw)
 
 
 def write_exr_parts(path: Path, parts: list) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    exr.write_exr_parts(path, parts)
+    exr_write.write_exr_parts(path, parts)
 
 
 def rgb(image: np.ndarray) -> dict[str, np.ndarray]:

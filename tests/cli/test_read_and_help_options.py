@@ -14,7 +14,7 @@ from mcdenoise_cli.options import PROFILE_FORMS, profile_forms
 
 from mcdenoise import registry
 from mcdenoise.io import load_buffers
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.io.profiles import PROFILE_NAMES
 
 ONE_THREAD = True

@@ -13,6 +13,7 @@ from mcdenoise_cli.main import main
 
 from mcdenoise import threads
 from mcdenoise.io import load_buffers
+from mcdenoise.registry import get_method
 
 SAMPLE = Path(__file__).resolve().parents[2] / "data" / "samples" / "cornell_spp4.exr"
 TINY = ["-s", "kernel=5", "-s", "patch=16", "-s", "margin=2", "-s", "batch=2"]
@@ -161,7 +162,7 @@ def test_render_threads_sets_mitsubas_pool(monkeypatch, tmp_path: Path) -> None:
 def test_a_far_too_slow_method_says_so_once_on_stderr(monkeypatch, tmp_path: Path) -> None:
     monkeypatch.setattr(threads, "_warned", set())
     monkeypatch.setattr(threads, "MIN_WARN_SECONDS", 0.0)
-    monkeypatch.setitem(threads.RECORDED_SPEED, "kpcn", (1e-9, 1e-9))
+    monkeypatch.setitem(get_method("kpcn").recorded_speed, "kpcn", (1e-9, 1e-9))
     inputs = [str(SAMPLE), str(SAMPLE.with_name("dof_spp4.exr"))]
     r = run("denoise", *inputs, "-o", str(tmp_path), "--method", "kpcn", "--threads", "1")
     assert r.exit_code == 0, r.output + r.stderr

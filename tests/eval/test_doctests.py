@@ -8,7 +8,7 @@ import importlib
 import pytest
 
 
-@pytest.mark.parametrize("name", ["metrics", "tonemap", "preview", "matching"])
+@pytest.mark.parametrize("name", ["metrics", "tonemap", "preview", "matching", "noisebase"])
 def test_docstring_examples(name):
     module = importlib.import_module(f"mcdenoise.eval.{name}")
     failed, attempted = doctest.testmod(module, optionflags=doctest.ELLIPSIS)

@@ -68,7 +68,8 @@ def test_without_halves_or_with_a_temporal_method_it_is_refused(tmp_path: Path) 
 
 
 def test_reference_free_report_of_several_methods(tmp_path: Path) -> None:
-    from mcdenoise.eval.estimate import estimate_files, format_estimates, write_estimate_report
+    from mcdenoise.eval.estimate import format_estimates, write_estimate_report
+    from mcdenoise.eval.estimate_files import estimate_files
 
     src = _image(tmp_path / "in.exr")
     outs = tmp_path / "outs"

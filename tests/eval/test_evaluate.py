@@ -16,7 +16,7 @@ from mcdenoise.eval import evaluate, match_prefix, run_eval
 from mcdenoise.eval import metrics as M
 from mcdenoise.eval.matching import scan_exr
 from mcdenoise.io.atomic import TMP_PREFIX
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 
 H, W = 12, 16
 

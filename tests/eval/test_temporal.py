@@ -12,6 +12,7 @@ import torch
 from mcdenoise.errors import InputError
 from mcdenoise.eval import temporal_metrics as T
 from mcdenoise.eval.metrics import MetricUnavailable, relmse
+from mcdenoise.eval.noisebase import noisebase_uint8
 
 H, W = 8, 10
 
@@ -114,7 +115,7 @@ def test_noisebase_display_pinned_by_hand():
     img = np.zeros((3, 1, 3))
     img[:, 0, 1] = 1.0
     img[:, 0, 2] = 1e6
-    u8 = T.noisebase_uint8(img)
+    u8 = noisebase_uint8(img)
     assert u8.dtype == np.uint8
     assert u8[:, 0, 0].tolist() == [0, 0, 0]
     assert u8[:, 0, 1].tolist() == [205, 205, 205]
@@ -125,7 +126,7 @@ def test_noisebase_tonemap_equals_the_port_exactly():
     rng = np.random.default_rng(3)
     img = rng.gamma(0.7, 1.0, size=(3, 16, 16))
     img[0, 0, :4] = [0.0, -0.2, 30.0, 1e-4]
-    assert np.array_equal(T.noisebase_uint8(img), np.moveaxis(nb_save(img), -1, 0))
+    assert np.array_equal(noisebase_uint8(img), np.moveaxis(nb_save(img), -1, 0))
 
 
 def test_noisebase_pair_values_by_hand():

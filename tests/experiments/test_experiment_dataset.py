@@ -9,7 +9,8 @@ import pytest
 from synthetic_data import JIT_SECONDS, make_render_folder
 
 from mcdenoise.experiments.dataset import load_dataset, render_folder
-from mcdenoise.experiments.spec import ExperimentError, parse_experiment
+from mcdenoise.experiments.spec import parse_experiment
+from mcdenoise.experiments.spec_fields import ExperimentError
 
 
 def test_levels_exclude_jit_and_keep_the_manifest_order(tmp_path: Path):

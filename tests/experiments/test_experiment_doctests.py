@@ -8,7 +8,7 @@ import importlib
 import pytest
 
 
-@pytest.mark.parametrize("name", ["quality", "tradeoff", "stats", "timing", "provenance", "runner"])
+@pytest.mark.parametrize("name", ["quality", "tradeoff", "stats", "timing", "provenance", "units"])
 def test_docstring_examples(name):
     module = importlib.import_module(f"mcdenoise.experiments.{name}")
     failed, attempted = doctest.testmod(module, optionflags=doctest.ELLIPSIS)

@@ -20,7 +20,7 @@ from mcdenoise.experiments import ExperimentError
 from mcdenoise.experiments.analysis import RENDER_TIME_UNKNOWN
 from mcdenoise.experiments.folder_data import scan_folder
 from mcdenoise.io import load_buffers
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 
 MITSUBA = {"generatedBy": "Mitsuba version 3.9.1"}
 

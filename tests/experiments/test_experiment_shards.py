@@ -95,7 +95,8 @@ def test_a_merge_takes_each_shards_device_and_says_when_hosts_differ(tmp_path, s
     fingerprint matches no device is missing. Records of two hosts: the report says so."""
     from mcdenoise.experiments import load_experiment, plan_methods
     from mcdenoise.experiments.dataset import load_dataset
-    from mcdenoise.experiments.runner import RunSettings, fingerprint, plan_units
+    from mcdenoise.experiments.runner import plan_units
+    from mcdenoise.experiments.units import RunSettings, fingerprint
 
     out = tmp_path / "out"
     for i in (1, 2):

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from mcdenoise.experiments.spec import ExperimentError, load_experiment, parse_experiment
+from mcdenoise.experiments.spec import load_experiment, parse_experiment
+from mcdenoise.experiments.spec_fields import ExperimentError
 
 REPO = Path(__file__).resolve().parents[2]
 SCENES = REPO / "data" / "scenes"

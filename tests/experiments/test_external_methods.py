@@ -16,7 +16,8 @@ from synthetic_data import make_render_folder
 
 from mcdenoise import registry
 from mcdenoise.experiments.entries import plan_methods
-from mcdenoise.experiments.spec import ExperimentError, load_experiment, parse_experiment
+from mcdenoise.experiments.spec import load_experiment, parse_experiment
+from mcdenoise.experiments.spec_fields import ExperimentError
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "tests" / "data" / "external_denoiser.py"

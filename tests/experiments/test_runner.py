@@ -22,7 +22,7 @@ from synthetic_data import (
 
 from mcdenoise.eval.metrics import compute_metrics
 from mcdenoise.experiments import ExperimentError, load_experiment, plan_methods, run_experiment
-from mcdenoise.experiments.runner import WORK, read_unit
+from mcdenoise.experiments.units import WORK, read_unit
 from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import TMP_PREFIX
 

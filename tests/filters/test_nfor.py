@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from mcdenoise.errors import InputError
-from mcdenoise.filters.nfor import NforSettings, collaborative_regression, nfor, nl_means
+from mcdenoise.filters.nfor import NforSettings, collaborative_regression, nfor
+from mcdenoise.filters.nfor_weights import nl_means
 
 
 def _weights_direct(guide, var, f, r, k, var_scale):

@@ -9,7 +9,8 @@ import torch
 
 from mcdenoise.errors import ExrError, InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, probe_exr, save_buffers
-from mcdenoise.io.exr import read_exr, write_exr
+from mcdenoise.io.exr import read_exr
+from mcdenoise.io.exr_write import write_exr
 
 
 def full_buffers(rng: np.random.Generator, h: int = 13, w: int = 21) -> FeatureBuffers:

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from mcdenoise.errors import ExrError, InputError
-from mcdenoise.io import exr
+from mcdenoise.io import exr, exr_write
 from mcdenoise.io.atomic import TMP_PREFIX
-from mcdenoise.io.exr import HALF_MAX, probe_exr, read_exr, write_exr
+from mcdenoise.io.exr import probe_exr, read_exr
+from mcdenoise.io.exr_write import HALF_MAX, write_exr
 
 
 def random_bits(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
@@ -407,7 +408,7 @@ def test_write_interrupted_midway_keeps_old_file_and_no_temp(tmp_path, monkeypat
         def __getattr__(self, name):
             return FakeOutput if name == "ImageOutput" else getattr(oiio, name)
 
-    monkeypatch.setattr(exr, "_oiio", lambda: FakeModule())
+    monkeypatch.setattr(exr_write, "_oiio", lambda: FakeModule())
     with pytest.raises(exc_type):
         write_exr(target, {"Y": np.zeros((64, 48), np.float32)})
     monkeypatch.undo()
@@ -424,7 +425,7 @@ def test_process_killed_while_writing_leaves_old_or_new_file(tmp_path):
     script = textwrap.dedent(
         f"""
         import sys, numpy as np
-        from mcdenoise.io.exr import write_exr
+        from mcdenoise.io.exr_write import write_exr
         new = np.full(({h}, {w}), 2.0, np.float32)
         print("ready", flush=True)
         while True:

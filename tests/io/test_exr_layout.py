@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from mcdenoise.errors import ExrError
-from mcdenoise.io.exr import ExrPartData, write_exr, write_exr_parts
 from mcdenoise.io.exr_layout import check_complete, header_strings
+from mcdenoise.io.exr_write import ExrPartData, write_exr, write_exr_parts
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
 

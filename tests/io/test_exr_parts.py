@@ -19,7 +19,7 @@ from mcdenoise.io import (
     save_buffers_parts,
     write_exr_parts,
 )
-from mcdenoise.io.exr import HALF_MAX
+from mcdenoise.io.exr_write import HALF_MAX
 
 
 def _rgb(rng: np.random.Generator, h: int = 5, w: int = 7, scale: float = 1.0) -> dict:

@@ -10,7 +10,8 @@ import torch
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 from mcdenoise.io.buffers import BUFFER_NAMES, HALF_NAMES, check_halves, has_halves
-from mcdenoise.io.exr import probe_exr, write_exr
+from mcdenoise.io.exr import probe_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.io.profiles.mcdenoise import canonical_channels
 
 H, W = 5, 7

@@ -11,7 +11,7 @@ import torch
 
 from mcdenoise.errors import ExrError
 from mcdenoise.io import FeatureBuffers, describe, save_buffers
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 
 
 @pytest.fixture

@@ -15,7 +15,8 @@ import torch
 
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers, save_buffers_parts
-from mcdenoise.io.exr import probe_exr, write_exr
+from mcdenoise.io.exr import probe_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.io.oidn_layout import (
     find_oidn_images,
     read_oidn_level,

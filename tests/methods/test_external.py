@@ -20,13 +20,8 @@ from mcdenoise.denoise import denoise
 from mcdenoise.errors import InputError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
 from mcdenoise.io.exr import read_exr
-from mcdenoise.methods.external import (
-    command_env,
-    command_method,
-    parse_template,
-    read_pfm,
-    write_pfm,
-)
+from mcdenoise.methods.external import command_method, parse_template, read_pfm, write_pfm
+from mcdenoise.programs import command_env
 from mcdenoise.registry import parse_methods
 
 REPO = Path(__file__).resolve().parents[2]

@@ -309,7 +309,7 @@ def test_procedural_sky_is_brighter_above_than_below():
 
 
 def test_envmap_file_and_its_rotation(tmp_path):
-    from mcdenoise.io.exr import write_exr
+    from mcdenoise.io.exr_write import write_exr
 
     # lat-long lit only where the direction has x > 0 (u in (0, 0.5) in Mitsuba's layout)
     w, h = 32, 17

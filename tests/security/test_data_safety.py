@@ -40,7 +40,8 @@ from mcdenoise import registry
 from mcdenoise.errors import ExrError, McdenoiseError
 from mcdenoise.io import FeatureBuffers, save_buffers
 from mcdenoise.io.atomic import TMP_PREFIX, sweep_stale_temporaries
-from mcdenoise.io.exr import read_exr, write_exr
+from mcdenoise.io.exr import read_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.method import Method
 
 
@@ -104,7 +105,7 @@ def cut_flush(monkeypatch: pytest.MonkeyPatch):
     ``close()`` that returns true."""
     import OpenImageIO as oiio
 
-    from mcdenoise.io import exr
+    from mcdenoise.io import exr_write
 
     def install(lost: int) -> None:
         class Output:
@@ -116,7 +117,7 @@ def cut_flush(monkeypatch: pytest.MonkeyPatch):
             def __getattr__(self, name: str) -> Any:
                 return Output if name == "ImageOutput" else getattr(oiio, name)
 
-        monkeypatch.setattr(exr, "_oiio", lambda: Module())
+        monkeypatch.setattr(exr_write, "_oiio", lambda: Module())
 
     return install
 

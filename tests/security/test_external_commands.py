@@ -33,18 +33,14 @@ from shared_inputs import EntryPoint, noisy_with_halves
 
 from mcdenoise import registry
 from mcdenoise.errors import InputError
-from mcdenoise.experiments.spec import ExperimentError, load_experiment
+from mcdenoise.experiments.spec import load_experiment
+from mcdenoise.experiments.spec_fields import ExperimentError
 from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
-from mcdenoise.io.exr import read_exr, write_exr
+from mcdenoise.io.exr import read_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.method import Method
-from mcdenoise.methods.external import (
-    FOLDER_PREFIX,
-    STALE_SECONDS,
-    _absolute_args,
-    _setpriv,
-    command_method,
-    sweep_stale_folders,
-)
+from mcdenoise.methods.external import _absolute_args, command_method
+from mcdenoise.programs import FOLDER_PREFIX, STALE_SECONDS, _setpriv, sweep_stale_folders
 
 REPO = Path(__file__).resolve().parents[2]
 DENOISER = REPO / "tests" / "data" / "external_denoiser.py"
@@ -381,9 +377,10 @@ time.sleep(120)
 PARENT = """\
 import sys, torch
 from mcdenoise.io import FeatureBuffers
+from mcdenoise import programs
 from mcdenoise.methods import external
 if sys.argv[2] == "preexec":
-    external._setpriv = lambda: ()
+    programs._setpriv = lambda: ()
 template = external.parse_template(sys.argv[1])
 external.run_command(template, FeatureBuffers({"color": torch.ones(3, 4, 4)}), timeout=300)
 """

@@ -38,7 +38,7 @@ from mcdenoise_cli.main import main
 from mcdenoise.errors import InputError
 from mcdenoise.eval import evaluate
 from mcdenoise.eval.matching import PrefixMatcher, match_prefix
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 from mcdenoise.modelfile import CheckpointError, load_state
 from mcdenoise.models.kalantari import KalantariModel, ModelCard
 from mcdenoise.models.kpcn import KpcnCard, KpcnModel

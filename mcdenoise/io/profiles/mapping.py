@@ -48,10 +48,10 @@ class MappingProfile(Profile):
 def _parse_mapping_text(text: str, fmt: str, where: str) -> Any:
     if fmt == "toml":
         try:
-            import tomllib
+            import tomllib  # lazy: optional, see except
         except ModuleNotFoundError:  # Python 3.10
             try:
-                import tomli as tomllib  # type: ignore[no-redef]
+                import tomli as tomllib  # type: ignore[no-redef]  # lazy: optional, see except
             except ModuleNotFoundError:
                 raise ProfileError(
                     f"{where}: reading TOML needs Python 3.11+ (or the tomli package); "

@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mcdenoise.io.atomic import atomic_path
+
 ROOT = Path(__file__).resolve().parent
 SEED = 20240611
 
@@ -51,7 +53,6 @@ SEED = 20240611
 
 def _atomic(path: Path) -> AbstractContextManager[Path]:
     """The library's atomic writer (a temporary next to ``path``, then ``os.replace``)."""
-    from mcdenoise.io.atomic import atomic_path
 
     return atomic_path(path)
 
@@ -324,7 +325,7 @@ def studio_envmap(width: int = 128, height: int = 64) -> np.ndarray:
 
 
 def write_png(path: Path, img: np.ndarray) -> None:
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: OpenImageIO only where an image is written
 
     with _atomic(path) as tmp:
         buf = oiio.ImageBuf(_to_srgb8(img))
@@ -333,7 +334,7 @@ def write_png(path: Path, img: np.ndarray) -> None:
 
 
 def write_exr(path: Path, img: np.ndarray) -> None:
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: OpenImageIO only where an image is written
 
     spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.HALF)
     spec.attribute("compression", "zip")

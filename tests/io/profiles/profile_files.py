@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mcdenoise.io.exr import write_exr
+from mcdenoise.io.exr_write import write_exr
 
 H, W = 6, 9
 # linear sRGB <- CIE XYZ (D65), as Mitsuba's film converts moment colours
@@ -66,7 +66,7 @@ def blender_file(path: Path, layers: dict, attributes: dict | None = None) -> Pa
 
     ``layers``: layer -> pass -> channel suffix -> ``(H, W)`` array, in file order.
     """
-    from mcdenoise.io.exr import ExrPartData, write_exr_parts
+    from mcdenoise.io.exr_write import ExrPartData, write_exr_parts
 
     parts = []
     for layer, passes in layers.items():
