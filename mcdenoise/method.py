@@ -189,11 +189,36 @@ def dataclass_defaults(cls: type) -> dict[str, Any]:
     return {f.name: f.default for f in dataclasses.fields(cls)}
 
 
+def check_choice(method: str, param: str, value: str, choices: Iterable[str]) -> str:
+    """``value`` when it is one of ``choices``; else ``InputError`` naming the method and
+    parameter (``"kpcn: prefilter must be one of ..."``)."""
+    choices = tuple(choices)
+    if value not in choices:
+        raise InputError(f"{method}: {param} must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def check_frame_size(
+    method: str, index: int, shape: tuple[int, int], size: tuple[int, int] | None
+) -> tuple[int, int]:
+    """The size of a sequence, ``(H, W)``: frame ``index``'s ``shape`` when it is the first
+    (``size`` ``None``), else ``size`` after checking that frame ``index`` has it
+    (``InputError`` otherwise: a temporal method needs one size for every frame)."""
+    if size is not None and shape != size:
+        raise InputError(
+            f"{method}: frame {index} is {shape[1]}x{shape[0]} but the sequence is "
+            f"{size[1]}x{size[0]}: every frame of a sequence must have one size"
+        )
+    return shape if size is None else size
+
+
 __all__ = [
     "CheckFn",
     "Method",
     "RunFn",
     "SequenceFn",
+    "check_choice",
+    "check_frame_size",
     "dataclass_defaults",
     "params_from_strings",
 ]

@@ -22,15 +22,14 @@ from torch import Tensor
 from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES, GUIDE_VARS
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.method import Method
-from mcdenoise.models.encoders import SOURCES
+from mcdenoise.method import Method, check_choice
+from mcdenoise.methods._learned import missing_weights, model_path, source_needs
 from mcdenoise.models.kpcn import STRIP, TILE, KpcnModel
 from mcdenoise.models.weights import SHIPPED, load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import (
     DEFAULT_PREFILTER,
     EXPOSURE_MODES,
     PREFILTER_MODES,
-    choose_source,
     exposure_scale,
     prepare_tensors,
     scale_exposure,
@@ -84,49 +83,26 @@ LEARNED_VARIANT = "learned"
 
 
 def _model(params: Mapping[str, Any]) -> KpcnModel:
-    name = str(params["model"])
-    if name in ("", SHIPPED):
-        path = shipped_model_path("kpcn")
-        variant = shipped_model_path("kpcn", LEARNED_VARIANT)
-        if str(params.get("prefilter", "")) == "learned" and variant.is_file():
-            path = variant
-        if not path.is_file():
-            raise InputError("kpcn: no shipped weights in this install; pass -p model=RUN_FOLDER")
-    else:
-        path = name
-    return load_kpcn(path)
+    learned = str(params.get("prefilter", "")) == "learned"
+    missing = "kpcn: no shipped weights in this install; pass -p model=RUN_FOLDER"
+    return load_kpcn(model_path("kpcn", params, missing, LEARNED_VARIANT if learned else None))
 
 
 def _check(b: FeatureBuffers, params: Mapping[str, Any]) -> str | None:
-    name = str(params["model"])
-    if name in ("", SHIPPED) and not shipped_model_path("kpcn").is_file():
-        return "no shipped weights in this install (pass -p model=RUN_FOLDER)"
+    if reason := missing_weights("kpcn", params):
+        return reason
     trained = _model(params).card.sources
     source = str(params["source"])
     if source != "auto" and source not in trained:
         return f"the model has no '{source}' source ({', '.join(trained)})"
-    wanted = list(trained) if source == "auto" else [source]
-    if choose_source(set(b.buffers), wanted) is not None:
-        return None
-    needs = " or ".join(
-        f"{s} ({', '.join(x for x in SOURCES[s] if x not in b)})" for s in wanted if s in SOURCES
-    )
-    return f"needs the buffers of a source the model was trained with: {needs}"
+    return source_needs(b, trained if source == "auto" else [source])
 
 
 def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> Tensor:
     model = _model(params).to(device)
     source = str(params["source"])
-    prefilter = str(params["prefilter"])
-    if prefilter not in PREFILTER_MODES:
-        raise InputError(
-            f"kpcn: prefilter must be one of {', '.join(PREFILTER_MODES)}, got {prefilter!r}"
-        )
-    exposure = str(params["exposure"])
-    if exposure not in EXPOSURE_MODES:
-        raise InputError(
-            f"kpcn: exposure must be one of {', '.join(EXPOSURE_MODES)}, got {exposure!r}"
-        )
+    prefilter = check_choice("kpcn", "prefilter", str(params["prefilter"]), PREFILTER_MODES)
+    exposure = check_choice("kpcn", "exposure", str(params["exposure"]), EXPOSURE_MODES)
     return denoise_kpcn(
         model,
         b,

@@ -33,7 +33,8 @@ from torch import Tensor
 from mcdenoise.errors import InputError
 from mcdenoise.filters.settings import GUIDE_FEATURES, GUIDE_VARS
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.method import Method
+from mcdenoise.method import Method, check_choice, check_frame_size
+from mcdenoise.methods._learned import missing_weights, model_path, source_needs
 from mcdenoise.models.encoders import SOURCES
 from mcdenoise.models.kpcn_temporal import TILE, TemporalKpcn, window_offsets
 from mcdenoise.models.weights import SHIPPED, load_kpcn_temporal, shipped_model_path
@@ -41,7 +42,6 @@ from mcdenoise.prep.kpcn import (
     DEFAULT_PREFILTER,
     EXPOSURE_MODES,
     PREFILTER_MODES,
-    choose_source,
     exposure_scale,
     source_for,
 )
@@ -104,13 +104,7 @@ def denoise_kpcn_temporal_sequence(
             if src not in model.base.card.sources:
                 raise InputError(f"{NAME}: the model has no '{src}' source")
         b.require(list(SOURCES[src]), needed_by=f"method '{NAME}' (source '{src}', frame {index})")
-        if size is None:
-            size = b.shape
-        elif b.shape != size:
-            raise InputError(
-                f"{NAME}: frame {index} is {b.shape[1]}x{b.shape[0]} but the sequence is "
-                f"{size[1]}x{size[0]}: every frame of a sequence must have one size"
-            )
+        size = check_frame_size(NAME, index, b.shape, size)
         frame = prepare_frame(b, src, prefilter, device)
         if index == 0 and exposure == "auto":
             k = exposure_scale(frame.tensors["color"])
@@ -126,43 +120,22 @@ def denoise_kpcn_temporal_sequence(
 
 
 def _model(params: Mapping[str, Any]) -> TemporalKpcn:
-    name = str(params["model"])
-    if name in ("", SHIPPED):
-        path = shipped_model_path(NAME)
-        if not path.is_file():
-            raise InputError(f"{NAME}: no shipped weights in this install; pass -p model=RUN")
-    else:
-        path = name
-    return load_kpcn_temporal(path)
+    missing = f"{NAME}: no shipped weights in this install; pass -p model=RUN"
+    return load_kpcn_temporal(model_path(NAME, params, missing))
 
 
 def _check(b: FeatureBuffers, params: Mapping[str, Any]) -> str | None:
-    name = str(params["model"])
-    if name in ("", SHIPPED) and not shipped_model_path(NAME).is_file():
-        return "no shipped weights in this install (pass -p model=RUN_FOLDER)"
-    trained = _model(params).base.card.sources
-    if choose_source(set(b.buffers), trained) is not None:
-        return None
-    needs = " or ".join(
-        f"{s} ({', '.join(x for x in SOURCES[s] if x not in b)})" for s in trained if s in SOURCES
-    )
-    return f"needs the buffers of a source the model was trained with: {needs}"
+    if reason := missing_weights(NAME, params):
+        return reason
+    return source_needs(b, _model(params).base.card.sources)
 
 
 def _run_sequence(
     frames: Iterable[FeatureBuffers], params: Mapping[str, Any], device: torch.device
 ) -> Iterator[Tensor]:
     model = _model(params).to(device)
-    prefilter = str(params["prefilter"])
-    if prefilter not in PREFILTER_MODES:
-        raise InputError(
-            f"{NAME}: prefilter must be one of {', '.join(PREFILTER_MODES)}, got {prefilter!r}"
-        )
-    exposure = str(params["exposure"])
-    if exposure not in EXPOSURE_MODES:
-        raise InputError(
-            f"{NAME}: exposure must be one of {', '.join(EXPOSURE_MODES)}, got {exposure!r}"
-        )
+    prefilter = check_choice(NAME, "prefilter", str(params["prefilter"]), PREFILTER_MODES)
+    exposure = check_choice(NAME, "exposure", str(params["exposure"]), EXPOSURE_MODES)
     window, mode = int(params["window"]), str(params["mode"])
     window_offsets(window or model.card.window, mode or model.card.mode)  # one-line error now
     source = str(params["source"])

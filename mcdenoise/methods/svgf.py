@@ -41,12 +41,11 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from mcdenoise.errors import InputError
 from mcdenoise.filters.parallel import single_threaded_ops
 from mcdenoise.filters.svgf import Svgf
 from mcdenoise.filters.svgf_guides import SvgfSettings, with_overrides
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.method import Method, dataclass_defaults
+from mcdenoise.method import Method, check_choice, check_frame_size, dataclass_defaults
 from mcdenoise.prep.inputs import PREFILTER, PREFILTER_ESTIMATED, prefilter_feature
 
 #: Buffers the method reads when present.
@@ -96,22 +95,12 @@ def denoise_svgf_sequence(
     """
     dev = torch.device(device)
     options = dict(overrides)
-    prefilter = str(options.pop("prefilter", "fast"))
-    if prefilter not in PREFILTERS:
-        raise InputError(
-            f"svgf: prefilter must be one of {', '.join(PREFILTERS)}, got {prefilter!r}"
-        )
+    prefilter = check_choice("svgf", "prefilter", str(options.pop("prefilter", "fast")), PREFILTERS)
     svgf = Svgf(with_overrides(SvgfSettings(), options))
     size: tuple[int, int] | None = None
     for index, b in enumerate(frames):
         b.require(["color"], needed_by="method 'svgf'")
-        if size is None:
-            size = b.shape
-        elif b.shape != size:
-            raise InputError(
-                f"svgf: frame {index} is {b.shape[1]}x{b.shape[0]} but the sequence is "
-                f"{size[1]}x{size[0]}: every frame of a sequence must have one size"
-            )
+        size = check_frame_size("svgf", index, b.shape, size)
         with single_threaded_ops(), torch.no_grad():
             color = _tensor(b, "color", dev)
             assert color is not None
