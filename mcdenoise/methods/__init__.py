@@ -1,46 +1,7 @@
 """The built-in denoising methods: one adapter module per method, listed by :func:`builtin_methods`.
 
-=================  ==========================================================  ========
-name               what                                                        priority
-=================  ==========================================================  ========
-kpcn               kernel-predicting U-Net (Bako 2017) with source-aware           35
-                   encoders and 3-scale kernels (Vogels 2018); ``model`` = a run
-                   folder or model file, default the shipped weights
-                   (:mod:`~mcdenoise.methods.kpcn`; -1 without shipped weights)
-kalantari-xbf      two-pass cross-bilateral filter whose per-pixel bandwidths      30
-                   a small MLP predicts from local features (Kalantari 2015);
-                   ``model`` = a run folder or model file, default the shipped
-                   weights (:mod:`~mcdenoise.methods.kalantari`)
-kalantari-nlm      the same learning for NLM (per-pixel k and feature k_f)         25
-nlm                variance-normalised non-local means with feature weights    20
-                   (Rousselle 2012/2013), albedo-demodulated
-                   (:mod:`~mcdenoise.methods.nlm`)
-cross-bilateral    cross-bilateral filter with Kalantari 2015 terms, fixed     10
-                   default bandwidths (alias ``xbf``;
-                   :mod:`~mcdenoise.methods.cross_bilateral`)
-svgf               temporal: spatiotemporal variance-guided filtering          5
-                   (Schied 2017; Falcor's SVGFPass) over a sequence with
-                   motion vectors; a frame without motion is a cut, so a
-                   still gets the first-frame filter (:mod:`~mcdenoise.methods.svgf`)
-nfor               NFOR (Bitterli 2016): first-order regression on the          3
-                   features with NL-means weights across the two half buffers,
-                   bandwidth chosen per pixel by the two-buffer error; needs
-                   ``color_a``/``color_b`` (:mod:`~mcdenoise.methods.nfor`)
-kpcn-temporal      temporal: Vogels 2018 kernel predictor over a window of      2
-                   motion-warped frames (5, offline; ``-p window``,
-                   ``-p mode=causal``) around the shipped kpcn; a one-frame
-                   sequence is kpcn bit for bit
-                   (:mod:`~mcdenoise.methods.kpcn_temporal`; -1 without weights)
-oidn               Intel Open Image Denoise (pyoidn), colour + albedo +        0
-                   normal; a peer to compare with, never the default
-                   (:mod:`~mcdenoise.methods.oidn`)
-ssao, hbao,        AO estimators: screen-space ambient occlusion from depth,  -10
-alchemy, gtao,     normal and the recorded camera (Crytek; Bavoil 2008;
-nnao               McGuire 2011/2012; Jimenez 2016 after XeGTAO; Holden 2016's
-                   learned NNAO); they ignore the noisy colour and compete with
-                   ray-traced AO plus a denoiser (:mod:`~mcdenoise.methods.ao`,
-                   :mod:`~mcdenoise.methods.nnao`)
-=================  ==========================================================  ========
+The methods, what each is and its priority: ``docs/methods.md`` (the table at its top and
+"Choosing a method"); ``mcdenoise methods`` lists them with the buffers each needs.
 
 Each module builds its :class:`~mcdenoise.method.Method` (buffers -> :mod:`mcdenoise.prep` ->
 filter or model -> output) without registering it; :mod:`mcdenoise.registry` adds
@@ -53,7 +14,7 @@ the input (:meth:`~mcdenoise.method.Method.accepts`: the buffers it requires, th
 shipped weights are installed: it needs colour, albedo and normal and uses whatever else the
 input has (the ``full`` source with every feature variance, the ``basic`` one without). Out
 of the training distribution it is the best of the project's methods at 4 and 16 spp, and the only
-one within the 4K bounds (issue 21; ``docs/results/ood.md``, ``docs/results/kalantari.md``
+one within the 4K bounds (``docs/results/ood.md``, ``docs/results/kalantari.md``
 "4K"); kalantari-xbf, next, is better on the four sample renders at 16 spp and the user's
 choice when time does not matter. The Kalantari models accept an input only with every
 guide *and guide variance* their model was trained with (the shipped models: albedo, normal,
