@@ -42,7 +42,7 @@ from mcdenoise.models.auxnet import AuxCard, AuxNet, net_inputs
 from mcdenoise.prep.inputs import exposure_scale, prepare_inputs
 from mcdenoise.prep.learned_prefilter import noise_channels
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.loop import CardTask, TrainResult, run_training
 from mcdenoise.train.pack import load_training_data
 from mcdenoise.train.patches import (
     REFERENCE,
@@ -130,18 +130,13 @@ def aux_loss(
     return (err * mask).sum() / mask.sum().clamp_min(1.0), out
 
 
-class AuxTask:
+class AuxTask(CardTask):
     """The :class:`~mcdenoise.train.loop.Task` of auxnet."""
 
     def __init__(self, model: AuxNet, val_items: Sequence[Item], description: dict[str, Any]):
-        self.module = model
-        self.forward_module: torch.nn.Module = model
-        self.device = torch.device("cpu")
-        self.find_unused_parameters = False
-        self.model = model
+        super().__init__(model, description)
+        self.model: AuxNet = model
         self.val_items = list(val_items)
-        self.description = description
-        self.last_val: dict[str, float] = {}
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
         loss, _ = aux_loss(self.model, batch, batch["mask"])
@@ -169,10 +164,6 @@ class AuxTask:
             "val_albedo_relmse_noisy": sum(rel_noisy) / len(rel_noisy),
         }
         return self.last_val
-
-    def export(self, path: Path) -> None:
-        self.model.card.training = {**self.description, "validation": dict(self.last_val)}
-        self.model.save(path)
 
 
 def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[AuxTask, PatchSampler, LoadReport]:

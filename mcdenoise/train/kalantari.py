@@ -29,7 +29,7 @@ from mcdenoise.models.features import FeatureStats, feature_names
 from mcdenoise.models.kalantari import KalantariModel, new_model, settings_class
 from mcdenoise.prep.kalantari import prepare_item
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.loop import CardTask, TrainResult, run_training
 from mcdenoise.train.patches import (
     Item,
     LoadReport,
@@ -49,7 +49,7 @@ def _batch(item: Item) -> dict[str, Tensor]:
     return {k: v[None] for k, v in item.tensors.items()}
 
 
-class KalantariTask:
+class KalantariTask(CardTask):
     """A :class:`~mcdenoise.train.loop.Task` for a Kalantari model.
 
     The training forward goes through ``forward_module`` (the model, or its DDP wrapper
@@ -69,17 +69,11 @@ class KalantariTask:
         description: dict[str, Any],
         loss: str = "relmse",
     ) -> None:
+        super().__init__(model, description)
+        self.model: KalantariModel = model
         self.loss_name = loss
-        self.module = model
-        self.forward_module: torch.nn.Module = model
-        self.device = torch.device("cpu")
-        #: every MLP weight is used in every step: DDP need not search for unused ones
-        self.find_unused_parameters = False
-        self.model = model
         self.val_items = list(val_items)
-        self.description = description
         self._fixed: list[float] | None = None
-        self.last_val: dict[str, float] = {}
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
         out = self.forward_module(batch)
@@ -119,10 +113,6 @@ class KalantariTask:
             res[f"val_ratio_spp{spp}"] = ratio
         self.last_val = res
         return res
-
-    def export(self, path: Path) -> None:
-        self.model.card.training = {**self.description, "validation": dict(self.last_val)}
-        self.model.save(path)
 
 
 def build(

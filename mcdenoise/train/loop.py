@@ -112,6 +112,28 @@ class Task(Protocol):
         ...
 
 
+class CardTask:
+    """The start of a :class:`Task` whose model is one carded module (auxnet, kalantari,
+    nnao): the attributes the conventions ask for, set for a single process on the CPU, the
+    training ``description`` and the last validation; :meth:`export` records both in the
+    card's ``training`` field and writes the model file. A subclass adds ``loss`` and
+    ``validate``."""
+
+    def __init__(self, model: Any, description: dict[str, Any]) -> None:
+        self.module = model
+        self.forward_module: nn.Module = model
+        self.device = torch.device("cpu")
+        #: every weight is used in every step: DDP need not search for unused ones
+        self.find_unused_parameters = False
+        self.model = model
+        self.description = description
+        self.last_val: dict[str, float] = {}
+
+    def export(self, path: Path) -> None:
+        self.model.card.training = {**self.description, "validation": dict(self.last_val)}
+        self.model.save(path)
+
+
 @dataclass
 class TrainResult:
     """Summary of a finished :func:`train` (``rank``/``world_size``: of the process)."""
@@ -488,6 +510,7 @@ __all__ = [
     "AMP_DTYPES",
     "RANK_SEED_STRIDE",
     "RESUME_FREE",
+    "CardTask",
     "CheckpointError",
     "Task",
     "TrainResult",

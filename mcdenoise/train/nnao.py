@@ -28,7 +28,7 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.methods.nnao import gbuffer_for, nnao_inputs
 from mcdenoise.models.nnao import NnaoCard, NnaoModel
 from mcdenoise.train.config import TrainConfig
-from mcdenoise.train.loop import TrainResult, run_training
+from mcdenoise.train.loop import CardTask, TrainResult, run_training
 from mcdenoise.train.patches import REFERENCE, Item, LoadReport, describe_training, load_split
 
 #: Pixels per unit of ``batch`` (``batch = 8``: 8192 pixels a step).
@@ -74,20 +74,15 @@ class PixelSampler:
         return {"inputs": self.x[idx], "target": self.y[idx]}
 
 
-class NnaoTask:
+class NnaoTask(CardTask):
     """The :class:`~mcdenoise.train.loop.Task` of nnao."""
 
     def __init__(
         self, model: NnaoModel, val_items: Sequence[Item], description: dict[str, Any]
     ) -> None:
-        self.module = model
-        self.forward_module: torch.nn.Module = model
-        self.device = torch.device("cpu")
-        self.find_unused_parameters = False
-        self.model = model
+        super().__init__(model, description)
+        self.model: NnaoModel = model
         self.val = _pixels(val_items) if val_items else None
-        self.description = description
-        self.last_val: dict[str, float] = {}
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
         out = self.forward_module(batch["inputs"])
@@ -102,10 +97,6 @@ class NnaoTask:
         rel = float(torch.mean((out - y) ** 2 / (y * y + 0.01)))
         self.last_val = {"val_loss": mse, "val_relmse": rel}
         return self.last_val
-
-    def export(self, path: Path) -> None:
-        self.model.card.training = {**self.description, "validation": dict(self.last_val)}
-        self.model.save(path)
 
 
 def build(cfg: TrainConfig, *, progress: bool = False) -> tuple[NnaoTask, PixelSampler, LoadReport]:

@@ -207,6 +207,18 @@ class TrainOutcome:
         return lines
 
 
+def _flag_values(
+    overrides: Mapping[str, Any] | None, model: str | None, data: str | None
+) -> dict[str, Any]:
+    """The config values of the command line: ``-s key=value``, then ``--model`` and ``--data``."""
+    values: dict[str, Any] = dict(overrides or {})
+    if model is not None:
+        values["model"] = model
+    if data is not None:
+        values["data"] = data
+    return values
+
+
 def train_model(
     out: str | os.PathLike[str],
     *,
@@ -229,11 +241,7 @@ def train_model(
     Raises:
         InputError: bad config, unknown model, unusable data (see the trainers).
     """
-    values: dict[str, Any] = dict(overrides or {})
-    if model is not None:
-        values["model"] = model
-    if data is not None:
-        values["data"] = data
+    values = _flag_values(overrides, model, data)
     if steps is not None:
         values["steps"] = str(steps)
     if finetune_encoder is not None:
@@ -273,11 +281,7 @@ def pack_data(
     Raises:
         InputError: another model, no data folder, bad config, no usable training image.
     """
-    values: dict[str, Any] = dict(overrides or {})
-    if model is not None:
-        values["model"] = model
-    if data is not None:
-        values["data"] = data
+    values = _flag_values(overrides, model, data)
     cfg = load_config(config_file, values)
     if cfg.model != "kpcn":
         raise InputError(f"--pack prepares kpcn training data only, not {cfg.model}")
