@@ -151,7 +151,7 @@ def available(name: str) -> bool:
     if name != "oidn":
         return True
     try:
-        import pyoidn  # noqa: F401
+        import pyoidn  # noqa: F401  # lazy: pyoidn is optional
     except ImportError:
         return False
     return True
