@@ -44,7 +44,7 @@ def _with_parent() -> tuple[list[str], Callable[[], None] | None]:
     session): the launcher, when it works here (:func:`_setpriv`). Otherwise the request is
     made by a ``preexec_fn`` (:func:`_die_with_parent`), which makes Python ``fork`` the
     whole process instead of ``vfork``: 25-35 ms more per command in a process that holds
-    torch (against ~2 ms), measured in the session of issue 33. Elsewhere: neither.
+    torch (against ~2 ms, measured on 2 shared cores). Elsewhere: neither.
     """
     launcher = _setpriv()
     if launcher:

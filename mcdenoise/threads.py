@@ -5,7 +5,7 @@ thread per core by default, and libgomp's waiting threads *spin* at every barrie
 300 000 iterations, ``GOMP_SPINCOUNT``; ``OMP_WAIT_POLICY``). When another process is busy on
 the same cores, a spinning thread burns the time slice the thread it waits for needs, and every
 parallel operator pays for it: on 2 shared cores with a 2-thread torch loop running beside it,
-``kalantari-xbf`` on a 128×128 sample took 82 s instead of 0.3 s (issue 20). Measured choices
+``kalantari-xbf`` on a 128×128 sample took 82 s instead of 0.3 s. Measured choices
 are in ``docs/results/threads.md``; what this module does about it:
 
 * :func:`set_wait_policy` bounds the spinning: ``GOMP_SPINCOUNT=10000`` (a waiting thread spins

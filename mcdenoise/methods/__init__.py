@@ -55,10 +55,10 @@ def builtin_methods() -> list[tuple[Method, tuple[str, ...]]]:
         (kpcn.METHOD, ()),
         (oidn.METHOD, ()),
         (svgf.METHOD, ()),
-        (nfor.METHOD, ()),  # NFOR, needs half buffers (issue 24, H4)
-        (kpcn_temporal.METHOD, ()),  # temporal KPCN (Vogels 2018; issue 23, H2)
-        *((m, ()) for m in ao.METHODS),  # AO estimators (issue 25, H5)
-        (nnao.METHOD, ()),  # learned AO estimator (Holden 2016; issue 25, H7)
+        (nfor.METHOD, ()),  # NFOR, needs half buffers
+        (kpcn_temporal.METHOD, ()),  # temporal KPCN (Vogels 2018)
+        *((m, ()) for m in ao.METHODS),  # AO estimators
+        (nnao.METHOD, ()),  # learned AO estimator (Holden 2016)
     ]
 
 

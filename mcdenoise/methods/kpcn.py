@@ -76,7 +76,7 @@ def denoise_kpcn(
     return out / k
 
 
-#: Shipped variant trained with ``prefilter=learned`` features (issue 34): with the shipped
+#: Shipped variant trained with ``prefilter=learned`` features: with the shipped
 #: weights and ``-p prefilter=learned`` the method loads it, so the network sees the inputs
 #: it was trained on (``data/recipes/kpcn.md``).
 LEARNED_VARIANT = "learned"

@@ -15,11 +15,9 @@ Parameters: ``model`` (a model file or run folder; default the shipped
 render's), and ``blur`` (default on): a depth-aware separable Gaussian of radius 2
 (:func:`mcdenoise.ao.blur.gaussian_line_offsets`, HBAO+'s x and y passes). The pattern is the
 same at every pixel, so there is no sampling noise, but the network's error changes from
-pixel to pixel (samples snap to pixel centres differently at each pixel); on the two
-validation images of the first, 16-scene training set (seed 4000, never the benchmark
-scenes; measured with the first weights, hidden 32, 16) the blur raised SSIM from 0.743 /
-0.967 to 0.791 / 0.973 at relMSE 0.1107 -> 0.1092 / 0.0047 -> 0.0058 (a radius-4 Gaussian:
-SSIM 0.812 / 0.972, relMSE 0.1092 / 0.0071; the 4×4 box: 0.788 / 0.972).
+pixel to pixel (samples snap to pixel centres differently at each pixel), and the blur
+evens it out: it raised SSIM on the validation images (figures: ``docs/results/ao.md``,
+"nnao").
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``auxnet``: the learned prefilter of noisy albedo and normal buffers (issue 34).
+"""``auxnet``: the learned prefilter of noisy albedo and normal buffers.
 
 A path tracer's albedo and normal are the means of the same few samples as the colour. Where
 the samples of a pixel see different surfaces (depth of field, motion, texture and geometry
