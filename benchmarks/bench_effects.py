@@ -39,8 +39,9 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.render.effects import plan_effects
+from mcdenoise.render.mitsuba_setup import ensure_variant
 from mcdenoise.render.scene_spec import SceneSpec, load_spec, parse_spec
-from mcdenoise.render.scenes import ensure_variant, scene_dict
+from mcdenoise.render.scenes import scene_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SPEC = ROOT / "data" / "scenes" / "cornell.toml"

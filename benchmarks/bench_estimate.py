@@ -61,9 +61,9 @@ def render_cost(args: argparse.Namespace) -> int:
 
     from mcdenoise.render.config import RenderConfig
     from mcdenoise.render.jobs import jobs_from_specs
+    from mcdenoise.render.mitsuba_setup import ensure_variant
     from mcdenoise.render.passes import render_image
     from mcdenoise.render.scene_spec import load_spec
-    from mcdenoise.render.scenes import ensure_variant
     from mcdenoise.threads import set_render_threads
 
     variant = ensure_variant(args.variant)

@@ -23,9 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from mcdenoise.render.effects import plan_effects
+from mcdenoise.render.mitsuba_setup import ensure_variant, variant_works
 from mcdenoise.render.moments import moment_integrator, render_moments
 from mcdenoise.render.scene_spec import load_spec
-from mcdenoise.render.scenes import ensure_variant, scene_dict, variant_works
+from mcdenoise.render.scenes import scene_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SPEC = ROOT / "data" / "scenes" / "cornell.toml"

@@ -1,7 +1,7 @@
 """Robustness of every method against OIDN and against more samples (issue 22, item 3).
 
 Reads the ``results.csv`` of one or more experiment folders (written by ``mcdenoise eval
---experiment SPEC -o DIR``; columns in :data:`mcdenoise.experiments.report.CSV_HEAD`) and
+--experiment SPEC -o DIR``; columns in :data:`mcdenoise.experiments.report_tables.CSV_HEAD`) and
 prints, for every method, scene and spp level, the ratio of its relMSE to OIDN's at the same
 level, with the violations of the issue's three rules:
 

@@ -88,8 +88,9 @@ def render_plain(folder: Path, out: Path, threads: int) -> list[Path]:
 
     from mcdenoise.render.effects import plan_effects
     from mcdenoise.render.integrators import register_integrators
+    from mcdenoise.render.mitsuba_setup import ensure_variant, load_scene
     from mcdenoise.render.scene_spec import parse_spec
-    from mcdenoise.render.scenes import ensure_variant, load_scene, scene_dict
+    from mcdenoise.render.scenes import scene_dict
 
     manifest = json.loads((folder / "manifest.json").read_text())
     # the variant that rendered the canonical images (the same estimator as the reference)
@@ -97,7 +98,7 @@ def render_plain(folder: Path, out: Path, threads: int) -> list[Path]:
     variant = ensure_variant(used.pop() if len(used) == 1 else "auto")
     register_integrators()
     # at least 2: with one Dr.Jit thread, Mitsuba 3.9.1 never returns from Bitmap.write of an
-    # EXR (nor from loading an envmap file: mcdenoise.render.scenes.LOAD_THREADS)
+    # EXR (nor from loading an envmap file: mcdenoise.render.mitsuba_setup.LOAD_THREADS)
     dr.set_thread_count(max(threads, 2))
     width, height = manifest["settings"]["width"], manifest["settings"]["height"]
     out.mkdir(parents=True, exist_ok=True)

@@ -287,9 +287,12 @@ METHOD_CROSS_IMPORTS: dict[tuple[str, str], str] = {
 
 
 def _method_cross_imports() -> set[tuple[str, str]]:
-    """(importer, imported) pairs of modules of ``mcdenoise/methods/``, its ``__init__`` aside."""
+    """(importer, imported) pairs of modules of ``mcdenoise/methods/``, its ``__init__`` aside.
+
+    A private module (``methods/_learned.py``) registers no method: it is the methods' shared
+    plumbing, which any of them may import, so it is not a target here."""
     paths = sorted(p for p in (PACKAGE / "methods").glob("*.py") if p.name != "__init__.py")
-    names = {_module_name(p) for p in paths}
+    names = {_module_name(p) for p in paths if not p.name.startswith("_")}
     pairs = set()
     for path in paths:
         src = _module_name(path)

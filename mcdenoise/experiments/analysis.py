@@ -36,18 +36,27 @@ from typing import Any
 
 import numpy as np
 
-from mcdenoise.eval.results import decode_float, jsonable
+from mcdenoise.eval.results import jsonable
 from mcdenoise.eval.temporal_metrics import metric_spec
-from mcdenoise.experiments.dataset import Level, SceneData, read_reference
+from mcdenoise.experiments.curves import _noise_floor, _noisy_curve, _points
+from mcdenoise.experiments.dataset import Level, SceneData
+from mcdenoise.experiments.definitions import RENDER_TIME_UNKNOWN, SEQUENCE_DEFINITIONS, definitions
 from mcdenoise.experiments.entries import MethodEntry
 from mcdenoise.experiments.provenance import provenance
 from mcdenoise.experiments.quality import (
-    FLOOR_FACTOR,
     NoisyCurve,
     equal_quality,
     limited_by_reference,
     noisy_rises,
-    reference_noise_floor,
+)
+from mcdenoise.experiments.record_values import (
+    _geomean,
+    _mean,
+    _num,
+    _short,
+    bias_of,
+    number,
+    relmse_of,
 )
 from mcdenoise.experiments.sequence_units import TEMPORAL_OVERALL, temporal_rows
 from mcdenoise.experiments.shards import hosts_note, timing_hosts
@@ -61,63 +70,9 @@ from mcdenoise.experiments.tradeoff import (
     log_budgets,
     pareto_front,
 )
-from mcdenoise.geomean import geometric_mean
 
 #: Version of the results.json layout of experiments; bump when fields change meaning.
 SCHEMA = "mcdenoise.experiment/1"
-
-
-def number(value: Any) -> float | None:
-    """A record value as a float (``"inf"`` strings decoded); ``None`` when missing."""
-    try:
-        v = decode_float(value)
-    except (TypeError, ValueError):
-        return None
-    return v
-
-
-def finite(value: Any) -> bool:
-    """True for a finite number (not ``None``, not a JSON ``"inf"`` string)."""
-    v = number(value)
-    return v is not None and math.isfinite(v)
-
-
-def relmse_of(record: Mapping[str, Any]) -> float | None:
-    """relMSE of a record, ``None`` when it failed or has none."""
-    if record.get("failed"):
-        return None
-    v = number((record.get("metrics") or {}).get("relmse"))
-    return v if v is not None and math.isfinite(v) else None
-
-
-def _short(text: str, limit: int = 160) -> str:
-    """``text`` cut to ``limit`` characters (error messages can list every channel of a file)."""
-    return text if len(text) <= limit else text[: limit - 1] + "\u2026"
-
-
-def _geomean(values: Sequence[float | None]) -> float | None:
-    return geometric_mean(values, invalid="none")
-
-
-def bias_of(record: Mapping[str, Any]) -> float | None:
-    """Mean bias of a record (output mean / reference mean − 1), ``None`` when failed, not
-    computed or not finite."""
-    if record.get("failed"):
-        return None
-    v = number((record.get("metrics") or {}).get("bias"))
-    return v if v is not None and math.isfinite(v) else None
-
-
-def _mean(values: Sequence[float | None]) -> float | None:
-    """Arithmetic mean; ``None`` when any value is unknown (render time of data without
-    manifest) or there is none."""
-    if not values or any(v is None for v in values):
-        return None
-    return float(np.mean([float(v) for v in values if v is not None]))
-
-
-def _num(v: float) -> str:
-    return f"{v:.3g}"
 
 
 @dataclass
@@ -386,135 +341,6 @@ class ExperimentResult:
             "definition": TEMPORAL_OVERALL,
             "rows": temporal_rows(self),
         }
-
-
-#: The report's note when the data came without render seconds.
-RENDER_TIME_UNKNOWN = (
-    "render time unknown: the data came without a manifest.json recording how long each "
-    "level took to render (a folder of inputs and references), so total times, Pareto fronts, "
-    "equal-time tables and equal-quality seconds and speed-ups are not computed; errors, the "
-    "equal-quality spp and the denoise times are"
-)
-
-
-def definitions(metrics: Sequence[str]) -> dict[str, str]:
-    """How every derived number is defined (results.json and the report state them)."""
-    return {
-        "render_seconds": (
-            "cumulative wall seconds of Mitsuba rendering up to this spp level (progressive "
-            "levels: level n contains the samples of the lower levels), JIT kernel compilation "
-            "and scene loading excluded; from the render folder's manifest.json (null, "
-            "unknown, for data without one)"
-        ),
-        "denoise_seconds": (
-            "median wall seconds of the method over the timed repetitions (warm-up runs "
-            "excluded; method only, no file I/O); 0 for noisy"
-        ),
-        "total_seconds": "render_seconds + denoise_seconds",
-        "relmse_vs_noisy": "relMSE of the record / relMSE of the noisy image at the same spp",
-        "equal_quality": (
-            "spp plain rendering needs for the same relMSE, from the scene's measured noisy "
-            "curve (log-log interpolation between levels; 1/N law anchored at the highest "
-            "level beyond it, flagged 'extrapolated', or at the lowest level below it, flagged "
-            "'below ladder'); seconds = spp x the seconds per spp of plain rendering at the "
-            "highest level; speedup = those seconds / total_seconds"
-        ),
-        "noise_floor": (
-            "expected relMSE of the reference itself: mean(color_var / (ref^2 + 0.01)) over "
-            "pixels and channels, color_var being the reference's variance of the mean; "
-            f"records with relMSE below {FLOOR_FACTOR:g}x the floor are 'limited by the "
-            "reference'"
-        ),
-        "pareto": "no other (method, spp) is at least as fast and at least as accurate",
-        "equal_time": "lowest relMSE among the (method, spp) whose total_seconds fit the budget",
-        "statistics": (
-            "ratio = geometric mean over scenes of relMSE(method) / relMSE(baseline) at the "
-            "same spp, percentile bootstrap interval over scenes (seeded); wins = scenes where "
-            "the method has the lowest relMSE of all methods at that spp"
-        ),
-        "mean_bias": (
-            "output mean / reference mean - 1 (metric 'bias', per channel 'bias_r', 'bias_g', "
-            "'bias_b'); over scenes: the arithmetic mean of the scenes' values and their range; "
-            "the report names every method whose |bias| exceeds 2 %"
-        ),
-        "flagged": (
-            "a scene whose measured noisy relMSE rises from one spp level to the next (outside "
-            f"{FLOOR_FACTOR:g}x the reference's noise floor): fireflies dominate its error; the "
-            "overall findings are also given without the flagged scenes"
-        ),
-        "metrics": ", ".join(f"{metric_spec(m).label}: {metric_spec(m).space}" for m in metrics),
-    }
-
-
-#: Added to :func:`definitions` when the experiment's scenes are sequences.
-SEQUENCE_DEFINITIONS = {
-    "sequences": (
-        "each scene is a sequence of frames; one (scene, spp, method) runs the method over "
-        "the whole sequence, a temporal method with its history, a per-frame method on each "
-        "frame alone; every time is per frame"
-    ),
-    "render_seconds per frame": (
-        "mean over the frames of each frame's cumulative render seconds at this level, JIT "
-        "excluded frame by frame"
-    ),
-    "denoise_seconds per frame": (
-        "the method's seconds summed over the frames of one run and divided by their number; "
-        "median over the timed runs of the whole sequence"
-    ),
-    "per-frame metrics": (
-        "still metrics of every frame against its reference, averaged over the frames past "
-        "the warm-up (the first warmup_frames frames, reported apart as 'warm-up')"
-    ),
-    "temporal metrics": (
-        "temporal relMSE, tPSNR and tRMAE of mcdenoise.eval.temporal_metrics (frame differences of "
-        "the output against the reference's), averaged over the frame pairs past the warm-up"
-    ),
-}
-
-
-def _noise_floor(scene: SceneData) -> tuple[float | None, str | None]:
-    """The reference's noise floor; of a sequence, the mean of its frames' floors."""
-    if scene.is_sequence:
-        floors = []
-        for f in scene.frames:
-            floor, note = _floor_of(f.reference)
-            if floor is None:
-                return None, note
-            floors.append(floor)
-        return float(np.mean(floors)), None
-    return _floor_of(scene.reference)
-
-
-def _floor_of(reference: Path) -> tuple[float | None, str | None]:
-
-    buffers = read_reference(reference)
-    if "color_var" not in buffers:
-        return None, f"{reference.name} has no color_var: the reference's noise floor is unknown"
-    floor = reference_noise_floor(buffers["color"].numpy(), buffers["color_var"].numpy())
-    return (floor if math.isfinite(floor) else None), None
-
-
-def _noisy_curve(records: Sequence[Mapping[str, Any]]) -> NoisyCurve | None:
-    pts = []
-    for r in sorted(records, key=lambda r: r["spp"]):
-        e = relmse_of(r)
-        if r["method"] == NOISY and e is not None and e > 0:
-            seconds = number(r.get("render_seconds"))  # unknown: NaN, no seconds per spp
-            pts.append((int(r["spp"]), e, math.nan if seconds is None else seconds))
-    if not pts:
-        return None
-    spp, err, sec = zip(*pts)
-    return NoisyCurve(tuple(spp), tuple(err), tuple(sec))
-
-
-def _points(records: Sequence[Mapping[str, Any]]) -> list[Point]:
-    pts = []
-    for r in records:
-        e = relmse_of(r)
-        t = number(r.get("total_seconds"))
-        if e is not None and t is not None and math.isfinite(t):
-            pts.append(Point(r["method"], int(r["spp"]), t, e))
-    return pts
 
 
 def assemble(

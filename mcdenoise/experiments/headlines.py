@@ -22,14 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from mcdenoise.experiments.analysis import (
-    ExperimentResult,
-    OverallRow,
-    OverallView,
-    bias_of,
-    errors_by_key,
-)
+from mcdenoise.experiments.analysis import ExperimentResult, OverallRow, OverallView, errors_by_key
 from mcdenoise.experiments.quality import FLOOR_FACTOR
+from mcdenoise.experiments.record_values import bias_of
 from mcdenoise.experiments.spec_fields import NOISY
 from mcdenoise.experiments.stats import BETTER, bootstrap_geomean_ci
 

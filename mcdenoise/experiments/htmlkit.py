@@ -9,7 +9,7 @@ import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from mcdenoise.experiments.analysis import number
+from mcdenoise.experiments.record_values import number
 
 #: The mark of a result within 2× of the reference's noise floor.
 LIM_MARK = ' <span class="lim" title="within 2x of the reference noise floor">≈</span>'

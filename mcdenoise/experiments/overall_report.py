@@ -10,15 +10,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mcdenoise.experiments.analysis import (
-    RENDER_TIME_UNKNOWN as UNKNOWN_TIME,
-)
-from mcdenoise.experiments.analysis import (
-    ExperimentResult,
-    OverallView,
-    number,
-    relmse_of,
-)
+from mcdenoise.experiments.analysis import ExperimentResult, OverallView
+from mcdenoise.experiments.definitions import RENDER_TIME_UNKNOWN as UNKNOWN_TIME
 from mcdenoise.experiments.headlines import BIAS_LIMIT, pct
 from mcdenoise.experiments.htmlkit import LIM_MARK as _LIM_MARK
 from mcdenoise.experiments.htmlkit import esc as _esc
@@ -28,6 +21,7 @@ from mcdenoise.experiments.htmlkit import sec as _sec
 from mcdenoise.experiments.htmlkit import sub as _sub
 from mcdenoise.experiments.htmlkit import table as _table
 from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time, plot_speedup
+from mcdenoise.experiments.record_values import number, relmse_of
 from mcdenoise.experiments.spec_fields import NOISY
 from mcdenoise.experiments.stats import BETTER, IS_BASELINE, WORSE
 from mcdenoise.geomean import geometric_mean

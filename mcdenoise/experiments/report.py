@@ -15,10 +15,7 @@ an earlier report that the new page does not show are removed.
 
 from __future__ import annotations
 
-import csv
 import html
-import io
-import json
 import math
 import os
 import re
@@ -34,18 +31,11 @@ from mcdenoise.errors import McdenoiseError
 from mcdenoise.eval.eval_report import error_scale, percent, write_png
 from mcdenoise.eval.metrics import relmse_map
 from mcdenoise.eval.preview import choose_crop, crop
-from mcdenoise.eval.results import encode_float
 from mcdenoise.eval.temporal_metrics import metric_spec
 from mcdenoise.eval.tonemap import auto_exposure, colorbar, display, false_color
-from mcdenoise.experiments.analysis import (
-    SEQUENCE_DEFINITIONS,
-    ExperimentResult,
-    SceneSummary,
-    definitions,
-    number,
-    relmse_of,
-)
+from mcdenoise.experiments.analysis import ExperimentResult, SceneSummary
 from mcdenoise.experiments.dataset import read_level, read_reference
+from mcdenoise.experiments.definitions import SEQUENCE_DEFINITIONS, definitions
 from mcdenoise.experiments.headlines import headlines
 from mcdenoise.experiments.htmlkit import LIM_MARK as _LIM_MARK
 from mcdenoise.experiments.htmlkit import esc as _esc
@@ -58,48 +48,23 @@ from mcdenoise.experiments.htmlkit import table as _table
 from mcdenoise.experiments.overall_report import equal_time_table, overall_sections, plot_series
 from mcdenoise.experiments.plots import plot_error_vs_spp, plot_error_vs_time, plots_unavailable
 from mcdenoise.experiments.quality import FLOOR_FACTOR
+from mcdenoise.experiments.record_values import number, relmse_of
+from mcdenoise.experiments.report_tables import (
+    PROCESS_NOTE,
+    _process_mark,
+    _process_methods,
+    _process_methods_note,
+    write_csv,
+    write_frames_csv,
+    write_json,
+)
 from mcdenoise.experiments.spec_fields import NOISY
 from mcdenoise.experiments.temporal_report import scene_images, scene_table, temporal_section
-from mcdenoise.experiments.timing import PROCESS, timing_clock
 from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import write_text_atomic
 
-#: Columns of results.csv before the metric columns.
-CSV_HEAD = (
-    "scene",
-    "method",
-    "base_method",
-    "spp",
-    "render_seconds",
-    "denoise_seconds",
-    "total_seconds",
-    "denoise_runs",
-    "device",
-    "threads",
-    "timing_clock",
-    "host",
-)
-#: Columns of results.csv after the metric columns.
-CSV_TAIL = (
-    "relmse_vs_noisy",
-    "limited_by_reference",
-    "pareto",
-    "equal_quality_spp",
-    "equal_quality_seconds",
-    "equal_quality_extrapolated",
-    "speedup",
-    "failed",
-    "error",
-    "reason",
-    "output",
-    "params",
-)
 #: Names of the PNGs this module writes (pruned when no longer shown).
 _OWN_IMAGE = re.compile(r"^(plot|strip)_[A-Za-z0-9._-]+\.(png|gif)$")
-#: Columns of results.csv added at its end when the scenes are sequences.
-CSV_SEQUENCE = ("frames", "warmup_frames", "relmse_warmup", "trelmse_warmup")
-#: Columns of frames.csv (sequences: one row per record and frame) before the metrics.
-FRAMES_CSV_HEAD = ("scene", "method", "spp", "frame", "index", "warmup", "denoise_seconds")
 _MAX_ZOOM = 8
 
 HOW_TO_READ = (
@@ -167,105 +132,6 @@ def write_experiment_report(
 
 
 # --- JSON and CSV -------------------------------------------------------------------------
-
-
-def write_json(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
-    """``result.to_dict()`` as strict JSON (``allow_nan=False``), atomically."""
-    text = json.dumps(result.to_dict(), indent=1, ensure_ascii=False, allow_nan=False)
-    write_text_atomic(path, text + "\n")
-
-
-def _cell(value: Any) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return str(encode_float(value))
-    if isinstance(value, dict | list):
-        return json.dumps(value, sort_keys=True)
-    return str(value)
-
-
-#: Marks a denoise time that is a whole process (an external command), not in-process work.
-PROCESS_MARK = "‡"
-PROCESS_NOTE = (
-    f"{PROCESS_MARK}: an external command's time is the whole process (writing its input "
-    "files, starting the program, its own loading and work, reading its output), not "
-    "comparable on the same footing with the in-process methods' times."
-)
-
-
-def record_clock(r: Mapping[str, Any]) -> str | None:
-    """What a record's denoise seconds measure (``process``, ``in-process``, ``None`` for
-    noisy); records written before the field existed are judged by their method."""
-    if "timing_clock" in r:
-        return r["timing_clock"]
-
-    return timing_clock(str(r.get("base_method") or r.get("method")))
-
-
-def _process_mark(r: Mapping[str, Any]) -> str:
-
-    return PROCESS_MARK if record_clock(r) == PROCESS else ""
-
-
-def _process_methods(result: ExperimentResult) -> list[str]:
-    """Labels of the methods whose times are whole processes (external commands)."""
-    return sorted({str(r["method"]) for r in result.records if _process_mark(r)})
-
-
-def _process_methods_note(result: ExperimentResult) -> str:
-    return (
-        f"{', '.join(_process_methods(result))}: external command(s), timed as whole "
-        f"processes ({PROCESS_MARK}); " + PROCESS_NOTE.partition(": ")[2]
-    )
-
-
-def csv_columns(result: ExperimentResult) -> list[str]:
-    """Header of results.csv."""
-    extra = CSV_SEQUENCE if result.is_sequences else ()
-    return [*CSV_HEAD, *result.metrics, *CSV_TAIL, *extra]
-
-
-def write_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
-    """One row per (scene, spp, method) record, atomically."""
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(csv_columns(result))
-    for r in result.records:
-        timing = r.get("timing") or {}
-        eq = r.get("equal_quality") or {}
-        row = [r["scene"], r["method"], r.get("base_method"), r["spp"]]
-        row += [r.get("render_seconds"), r.get("denoise_seconds"), r.get("total_seconds")]
-        row.append(";".join(_cell(v) for v in timing.get("runs", [])) or None)
-        row += [r.get("device"), r.get("threads"), record_clock(r), r.get("host")]
-        row += [(r.get("metrics") or {}).get(m) for m in result.metrics]
-        row += [r.get("relmse_vs_noisy"), r.get("limited_by_reference"), r.get("pareto")]
-        row += [eq.get("spp"), eq.get("seconds"), eq.get("extrapolated"), eq.get("speedup")]
-        row += [r.get("failed"), r.get("error"), r.get("reason"), r.get("output")]
-        row.append(r.get("params") or None)
-        if result.is_sequences:
-            warm = r.get("warmup_metrics") or {}
-            row += [r.get("frames_count"), r.get("warmup_frames")]
-            row += [warm.get("relmse"), warm.get("trelmse")]
-        w.writerow([_cell(v) for v in row])
-    write_text_atomic(path, buf.getvalue())
-
-
-def write_frames_csv(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
-    """Sequences: one row per (scene, spp, method, frame) with the frame's denoise seconds
-    (the last timed run) and metrics (temporal ones: the pair ending at that frame)."""
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow([*FRAMES_CSV_HEAD, *result.metrics])
-    for r in result.records:
-        for f in r.get("frames") or []:
-            row = [r["scene"], r["method"], r["spp"], f.get("frame"), f.get("index")]
-            row += [f.get("warmup"), f.get("seconds")]
-            row += [(f.get("metrics") or {}).get(m) for m in result.metrics]
-            w.writerow([_cell(v) for v in row])
-    write_text_atomic(path, buf.getvalue())
 
 
 # --- plots --------------------------------------------------------------------------------

@@ -189,7 +189,7 @@ TEMPORAL_COLUMNS = (
 
 def number(value: Any) -> float | None:
     """A record value as a float (``"inf"`` strings decoded); ``None`` when missing (as
-    :func:`mcdenoise.experiments.analysis.number`, which imports this module: no cycle)."""
+    :func:`mcdenoise.experiments.record_values.number`, which imports this module: no cycle)."""
 
     try:
         return decode_float(value)

@@ -344,7 +344,7 @@ def render_geometry(
     spec: SceneSpec, plan: EffectPlan, camera: Camera, width: int, height: int
 ) -> GeometryBuffer:
     """Trace one ray through each pixel centre of ``camera`` (Mitsuba variant already set,
-    see :func:`mcdenoise.render.scenes.ensure_variant`); ``spec`` with objects where they are
+    see :func:`mcdenoise.render.mitsuba_setup.ensure_variant`); ``spec`` with objects where they are
     in this frame (:func:`spec_at`)."""
     import mitsuba as mi  # lazy: Mitsuba is optional and slow to import
 

@@ -21,7 +21,7 @@ from mcdenoise.render.animation import check_frames
 
 #: Largest number of samples per pixel of one render call (one pass).
 DEFAULT_PASS_SPP = 128
-#: Values of ``RenderConfig.variant`` (``auto``: see :func:`mcdenoise.render.scenes.ensure_variant`).
+#: Values of ``RenderConfig.variant`` (``auto``: see :func:`mcdenoise.render.mitsuba_setup.ensure_variant`).
 VARIANT_CHOICES: tuple[str, ...] = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
 
 

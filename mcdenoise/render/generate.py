@@ -76,9 +76,9 @@ from mcdenoise.render.manifest import (
     shard_manifests,
     write_shard_manifest,
 )
+from mcdenoise.render.mitsuba_setup import ensure_variant
 from mcdenoise.render.passes import render_image
 from mcdenoise.render.scene_spec import collect_specs
-from mcdenoise.render.scenes import ensure_variant
 
 
 @dataclass

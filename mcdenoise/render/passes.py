@@ -48,6 +48,7 @@ from mcdenoise.render.jobs import (
     reference_seed,
     split_passes,
 )
+from mcdenoise.render.mitsuba_setup import load_scene
 from mcdenoise.render.moments import (
     Moments,
     buffers_from_halves,
@@ -56,7 +57,7 @@ from mcdenoise.render.moments import (
     render_moments,
 )
 from mcdenoise.render.scene_spec import Camera
-from mcdenoise.render.scenes import camera_metadata, far_clip, load_scene, scene_dict
+from mcdenoise.render.scenes import camera_metadata, far_clip, scene_dict
 
 
 @dataclass
@@ -240,7 +241,7 @@ def render_image(
     if mi.variant() != variant:
         raise RenderError(
             f"render_image: Mitsuba variant {mi.variant()!r} is set, not {variant!r} "
-            "(call mcdenoise.render.scenes.ensure_variant first)"
+            "(call mcdenoise.render.mitsuba_setup.ensure_variant first)"
         )
 
     plan = plan_effects(job.spec)

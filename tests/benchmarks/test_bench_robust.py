@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from mcdenoise.experiments.report import CSV_HEAD, CSV_TAIL
+from mcdenoise.experiments.report_tables import CSV_HEAD, CSV_TAIL
 
 ROOT = Path(__file__).resolve().parents[2]
 

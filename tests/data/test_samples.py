@@ -31,7 +31,7 @@ COMMAND = "mcdenoise render data/scenes/samples --no-halves"
 @pytest.fixture(scope="module")
 def mitsuba_variant() -> str:
     pytest.importorskip("mitsuba")
-    from mcdenoise.render.scenes import ensure_variant
+    from mcdenoise.render.mitsuba_setup import ensure_variant
 
     return ensure_variant("auto")
 

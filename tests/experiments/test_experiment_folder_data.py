@@ -17,7 +17,7 @@ from synthetic_data import blend, clean_image, write_spec
 
 from mcdenoise.eval.metrics import compute_metrics
 from mcdenoise.experiments import ExperimentError
-from mcdenoise.experiments.analysis import RENDER_TIME_UNKNOWN
+from mcdenoise.experiments.definitions import RENDER_TIME_UNKNOWN
 from mcdenoise.experiments.folder_data import scan_folder
 from mcdenoise.io import load_buffers
 from mcdenoise.io.exr_write import write_exr

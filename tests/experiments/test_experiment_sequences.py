@@ -211,7 +211,7 @@ def test_still_experiment_unchanged(tmp_path, fake_methods):
     """A still experiment writes no sequence column, table or file."""
     from synthetic_data import make_render_folder
 
-    from mcdenoise.experiments.report import CSV_HEAD, CSV_TAIL
+    from mcdenoise.experiments.report_tables import CSV_HEAD, CSV_TAIL
 
     folder = make_render_folder(tmp_path / "stills", scenes=("alpha",), spp=(1, 2))
     fake_methods.add("box")

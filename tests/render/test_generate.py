@@ -110,7 +110,7 @@ def config(out: Path, **kw) -> RenderConfig:
 @pytest.fixture(scope="module")
 def variant() -> str:
     pytest.importorskip("mitsuba")
-    from mcdenoise.render.scenes import ensure_variant
+    from mcdenoise.render.mitsuba_setup import ensure_variant
 
     return ensure_variant(VARIANT)
 
@@ -413,7 +413,7 @@ def test_missing_mitsuba_is_one_clear_error(
 @pytest.mark.mitsuba
 def test_llvm_variant_is_deterministic_too(tmp_path: Path, variant: str) -> None:
     """Same spec, seed and settings in ``llvm_ad_rgb``: identical pixels, variant recorded."""
-    from mcdenoise.render.scenes import ensure_variant, variant_works
+    from mcdenoise.render.mitsuba_setup import ensure_variant, variant_works
 
     if not variant_works("llvm_ad_rgb"):
         pytest.skip("llvm_ad_rgb does not work here (libllvm19 missing?)")

@@ -39,7 +39,7 @@ BALL = (
 @pytest.fixture(scope="module")
 def variant() -> str:
     pytest.importorskip("mitsuba")
-    from mcdenoise.render.scenes import ensure_variant
+    from mcdenoise.render.mitsuba_setup import ensure_variant
 
     return ensure_variant(VARIANT)
 

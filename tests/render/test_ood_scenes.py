@@ -23,7 +23,7 @@ from mcdenoise.render.effects import plan_effects
 from mcdenoise.render.scene_spec import collect_specs, load_spec
 
 mi = pytest.importorskip("mitsuba")
-from mcdenoise.render import scenes  # noqa: E402  (after the importorskip)
+from mcdenoise.render import mitsuba_setup, scenes  # noqa: E402  (after the importorskip)
 
 pytestmark = pytest.mark.mitsuba
 
@@ -79,14 +79,14 @@ def test_the_set_covers_what_the_issue_asks():
 
 @pytest.mark.parametrize("path", OOD_SPECS, ids=lambda p: p.stem)
 def test_spec_builds_a_scene_that_renders(path):
-    scenes.ensure_variant("scalar_rgb")
+    mitsuba_setup.ensure_variant("scalar_rgb")
     from mcdenoise.render.integrators import register_integrators
 
     register_integrators()
     spec = load_spec(path)
     plan = plan_effects(spec)
     d = scenes.scene_dict(spec, plan, width=8, height=8)
-    image = np.array(mi.render(scenes.load_scene(d), spp=1, seed=0), dtype=np.float64)
+    image = np.array(mi.render(mitsuba_setup.load_scene(d), spp=1, seed=0), dtype=np.float64)
     assert image.shape == (8, 8, 3)
     assert np.isfinite(image).all() and image.max() > 0
 
@@ -127,14 +127,14 @@ def test_plain_aov_copies_are_what_mitsuba_writes(tmp_path):
 
 def test_envmap_file_loads_with_one_drjit_thread():
     """Mitsuba 3.9.1 (llvm) never returns from loading an envmap file with one Dr.Jit thread;
-    scenes.load_scene loads with two. Run in a child, so a regression fails instead of hanging."""
+    mitsuba_setup.load_scene loads with two. Run in a child, so a regression fails instead of hanging."""
     code = textwrap.dedent(
         f"""
         import drjit as dr
-        from mcdenoise.render import scenes
-        scenes.ensure_variant("auto")
+        from mcdenoise.render import mitsuba_setup, scenes
+        mitsuba_setup.ensure_variant("auto")
         dr.set_thread_count(1)
-        s = scenes.load_scene({{
+        s = mitsuba_setup.load_scene({{
             "type": "scene",
             "e": {{"type": "envmap", "filename": {str(ROOT / "data/scenes/envmaps/studio.exr")!r}}},
             "s": {{"type": "sphere"}},

@@ -483,7 +483,8 @@ def _render_indices() -> list[int]:
 @pytest.mark.parametrize("index", _render_indices())
 def test_random_specs_render_finite_and_lit(index):
     mi = pytest.importorskip("mitsuba")
-    from mcdenoise.render.scenes import ensure_variant, scene_dict
+    from mcdenoise.render.mitsuba_setup import ensure_variant
+    from mcdenoise.render.scenes import scene_dict
 
     ensure_variant("scalar_rgb")
     sc = rs.random_scene(0, index)

@@ -21,7 +21,7 @@ from mcdenoise.render.effects import plan_effects
 from mcdenoise.render.scene_spec import Camera, SpecError, load_spec, parse_spec
 
 mi = pytest.importorskip("mitsuba")
-from mcdenoise.render import scenes  # noqa: E402  (after the importorskip)
+from mcdenoise.render import mitsuba_setup, scenes  # noqa: E402  (after the importorskip)
 
 pytestmark = pytest.mark.mitsuba
 
@@ -34,7 +34,7 @@ DOWN = {"up": [0, 0, -1]}  # for cameras looking straight down
 
 @pytest.fixture(autouse=True)
 def _scalar() -> None:
-    scenes.ensure_variant("scalar_rgb")
+    mitsuba_setup.ensure_variant("scalar_rgb")
 
 
 def spec_of(effects: list[str], objects: list[dict], lights: list[dict] = (), **top: Any):
@@ -70,11 +70,11 @@ def render_aov(spec, aov: str, *, size=(32, 32), spp=4) -> np.ndarray:
 
 
 def test_ensure_variant_auto_picks_a_working_variant_and_registers_integrators():
-    v = scenes.ensure_variant("auto")
-    assert v in scenes.VARIANTS and mi.variant() == v
+    v = mitsuba_setup.ensure_variant("auto")
+    assert v in mitsuba_setup.VARIANTS and mi.variant() == v
     # auto takes the first that works of cuda, llvm, scalar
-    for better in scenes.VARIANTS[: scenes.VARIANTS.index(v)]:
-        assert better not in mi.variants() or not scenes.variant_works(better)
+    for better in mitsuba_setup.VARIANTS[: mitsuba_setup.VARIANTS.index(v)]:
+        assert better not in mi.variants() or not mitsuba_setup.variant_works(better)
     # the project's integrators load in it
     mi.load_dict({"type": "mcd_ao", "radius": 1.0})
     spec = load_spec(ROOT / "data" / "scenes" / "sun_outdoor.toml")
@@ -85,7 +85,7 @@ def test_ensure_variant_auto_picks_a_working_variant_and_registers_integrators()
 @pytest.mark.parametrize("bad", ["cuda", "scalar_spectral", ""])
 def test_ensure_variant_rejects_unknown_names(bad):
     with pytest.raises(InputError, match="variant"):
-        scenes.ensure_variant(bad)
+        mitsuba_setup.ensure_variant(bad)
 
 
 # -------------------------------------------------------------------------------- camera

@@ -141,7 +141,7 @@ def film_scale(fov: float, width: int) -> float:
 @pytest.fixture(scope="module")
 def variant() -> str:
     pytest.importorskip("mitsuba")
-    from mcdenoise.render.scenes import ensure_variant
+    from mcdenoise.render.mitsuba_setup import ensure_variant
 
     return ensure_variant(VARIANT)
 
