@@ -97,7 +97,6 @@ def main() -> None:
       mcdenoise info noisy.exr                    what the file holds
       mcdenoise denoise noisy.exr -o out.exr      best available method
       mcdenoise eval --ref ref.exr out.exr -o report/
-      mcdenoise experiment data/experiments/demo.toml -o demo-out
     """
     _log_to_stderr()
 

@@ -75,7 +75,7 @@ def is_slow(command: str) -> bool:
     """Renders, trains, the experiments, and what needs a trained run (minutes each)."""
     words = shlex.split(command)
     return (
-        words[1] in ("render", "train")
+        words[1] in ("render", "train", "experiment")
         or "--experiment" in words
         or "runs/" in command
         or "seq/" in command  # reads the sequence the README's render line writes
@@ -180,7 +180,7 @@ def test_readme_render_train_denoise_chain_runs(work: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.mitsuba
 def test_readme_demo_experiment_runs(work: Path) -> None:
-    (demo,) = [c for c in readme_commands() if "--experiment" in c]
+    (demo,) = [c for c in readme_commands() if c.startswith("mcdenoise experiment ")]
     run_line(demo)
     assert (work / "demo-out" / "report.html").is_file()
 
