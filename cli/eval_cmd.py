@@ -11,7 +11,7 @@ import sys
 
 import click
 from mcdenoise_cli.experiment_cmd import run_experiment_command
-from mcdenoise_cli.options import MetricsOption, threads_option
+from mcdenoise_cli.options import MetricsOption, progress_option, threads_option
 
 
 @click.command("eval")
@@ -56,11 +56,7 @@ from mcdenoise_cli.options import MetricsOption, threads_option
     help="Alias of `mcdenoise experiment SPEC`: run the experiment SPEC (TOML) and write its "
     "accuracy-vs-time report into -o (with --shard, --merge, --allow-commands as there).",
 )
-@click.option(
-    "--progress/--no-progress",
-    default=None,
-    help="Progress on stderr (default: a bar on a terminal, a few plain lines in a log).",
-)
+@progress_option
 @click.option(
     "--warmup",
     type=click.IntRange(min=0),

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 
 import click
-from mcdenoise_cli.options import MetricsOption, threads_option
+from mcdenoise_cli.options import MetricsOption, progress_option, threads_option
 
 #: The options that only an experiment takes (``eval`` accepts them with ``--experiment``).
 EXPERIMENT_OPTIONS = {"shard": "--shard", "merge": "--merge", "allow_commands": "--allow-commands"}
@@ -28,11 +28,7 @@ EXPERIMENT_OPTIONS = {"shard": "--shard", "merge": "--merge", "allow_commands": 
     "denoised outputs and the resumable work records.",
 )
 @click.option("--metrics", cls=MetricsOption, default=None, metavar="LIST")
-@click.option(
-    "--progress/--no-progress",
-    default=None,
-    help="Progress on stderr (default: a bar on a terminal, a few plain lines in a log).",
-)
+@progress_option
 @click.option(
     "--shard",
     default=None,

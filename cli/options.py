@@ -151,3 +151,11 @@ class MetricsOption(click.Option):
     def get_help_record(self, ctx: click.Context):
         self.help = metrics_help()
         return super().get_help_record(ctx)
+
+
+#: ``--progress/--no-progress`` of the commands that run long loops (render, eval, experiment).
+progress_option = click.option(
+    "--progress/--no-progress",
+    default=None,
+    help="Progress on stderr (default: a bar on a terminal, a few plain lines in a log).",
+)

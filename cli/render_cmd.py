@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from mcdenoise_cli.options import threads_option
+from mcdenoise_cli.options import progress_option, threads_option
 
 
 @click.command("render")
@@ -99,11 +99,7 @@ from mcdenoise_cli.options import threads_option
     "(<id>_0004spp.hdr.exr, .alb.exr, .nrm.exr, <id>_ref.hdr.exr; one feature per file).",
 )
 @threads_option(render=True)
-@click.option(
-    "--progress/--no-progress",
-    default=None,
-    help="Progress on stderr (default: a bar on a terminal, a few plain lines in a log).",
-)
+@progress_option
 def render(
     specs,
     random_count,

@@ -141,7 +141,8 @@ def csv_columns(result: EvalResult) -> list[str]:
     return [*CSV_HEAD, *result.metrics, *CSV_TAIL]
 
 
-def _cell(value: object) -> str:
+def csv_cell(value: object) -> str:
+    """A CSV cell: empty for ``None``, ``true``/``false``, floats as the JSON files write them."""
     if value is None:
         return ""
     if isinstance(value, bool):
@@ -164,7 +165,7 @@ def write_csv(result: EvalResult, path: str | os.PathLike[str]) -> None:
         row.append("; ".join(f"{k}: {v}" for k, v in rec.unavailable.items()) or None)
         row.append("; ".join(rec.notes) or None)
         row.append(rec.params)
-        writer.writerow([_cell(v) for v in row])
+        writer.writerow([csv_cell(v) for v in row])
     write_text_atomic(path, buf.getvalue())
 
 
@@ -182,7 +183,7 @@ def write_frames_csv(result: EvalResult, path: str | os.PathLike[str]) -> None:
             row += [f.file, f.seconds, *(f.metrics.get(m) for m in result.metrics)]
             row += [f.failed, f.bad_pixels, f.reason]
             row.append("; ".join(f"{k}: {v}" for k, v in f.unavailable.items()) or None)
-            writer.writerow([_cell(v) for v in row])
+            writer.writerow([csv_cell(v) for v in row])
     write_text_atomic(path, buf.getvalue())
 
 

@@ -11,7 +11,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-from mcdenoise.eval.results import encode_float
+from mcdenoise.eval.eval_report import csv_cell
 from mcdenoise.experiments.analysis import ExperimentResult
 from mcdenoise.experiments.timing import PROCESS, timing_clock
 from mcdenoise.io.atomic import write_text_atomic
@@ -65,15 +65,10 @@ def write_json(result: ExperimentResult, path: str | os.PathLike[str]) -> None:
 
 
 def _cell(value: Any) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return str(encode_float(value))
+    """:func:`~mcdenoise.eval.eval_report.csv_cell`, with a dict or list as sorted JSON."""
     if isinstance(value, dict | list):
         return json.dumps(value, sort_keys=True)
-    return str(value)
+    return csv_cell(value)
 
 
 #: Marks a denoise time that is a whole process (an external command), not in-process work.

@@ -76,6 +76,7 @@ from mcdenoise.filters.nfor_weights import (
     _offsets,
     _shifted,
     _tiled,
+    check_inputs,
     nl_means,
 )
 
@@ -342,11 +343,7 @@ def collaborative_regression(
         >>> torch.allclose(out, x, atol=1e-4)  # a linear ramp is fitted exactly
         True
     """
-    image = check_image(image, "image")
-    guide = check_image(guide, "guide").to(image.dtype)
-    var = check_image(var, "var").to(image.dtype)
-    check_same_size(image, guide, "guide", "image")
-    check_same_size(image, var, "var", "image")
+    image, guide, var = check_inputs(image, guide, var)
     if var.shape[1] not in (1, guide.shape[1]):
         raise InputError(f"var must have 1 or {guide.shape[1]} channels, got {var.shape[1]}")
     var = var.expand(-1, guide.shape[1], -1, -1)

@@ -156,11 +156,7 @@ def nl_means(
         >>> torch.allclose(out, torch.ones(1, 6, 12, 12))
         True
     """
-    image = check_image(image, "image")
-    guide = check_image(guide, "guide").to(image.dtype)
-    var = check_image(var, "var").to(image.dtype)
-    check_same_size(image, guide, "guide", "image")
-    check_same_size(image, var, "var", "image")
+    image, guide, var = check_inputs(image, guide, var)
     if image.shape[1] % guide.shape[1]:
         raise InputError(
             f"image has {image.shape[1]} channels, not a multiple of the guide's {guide.shape[1]}"
@@ -204,3 +200,14 @@ def _tiled(fn: Callable[..., Tensor], inputs: Sequence[Tensor], halo: int, tile:
     for (y0, y1, x0, x1), part in zip(boxes, parts, strict=True):
         out[..., y0:y1, x0:x1] = part
     return out
+
+
+def check_inputs(image: Tensor, guide: Tensor, var: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``image``, ``guide`` and ``var`` checked as ``(B, C, H, W)`` of one size, the last two in
+    ``image``'s dtype (NL-means and the regression take the same three)."""
+    image = check_image(image, "image")
+    guide = check_image(guide, "guide").to(image.dtype)
+    var = check_image(var, "var").to(image.dtype)
+    check_same_size(image, guide, "guide", "image")
+    check_same_size(image, var, "var", "image")
+    return image, guide, var
