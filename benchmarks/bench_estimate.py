@@ -257,6 +257,109 @@ def synthetic(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- shared noisy guides (issue 36) ----------------------------------------------------------
+def textured_samples(size: int, spp: int, trials: int, generator):
+    """A sub-pixel texture under smooth light, sampled per half: every sample hits a bright
+    (0.9) or a dark (0.1) texel, the bright one with a probability ``p`` that varies over the
+    image (the texel mix of the pixel), and carries light ``L·z`` (``z = 1 + 0.5 g``). Returns
+    the truth ``μ = L·E[α]`` ``(3, H, W)``, and per half (``(T, 3, H, W)`` each) the colour
+    means A, B and the albedo means αA, αB: each half's albedo is as noisy as its colour and
+    correlated with it, as on a real texture finer than a pixel."""
+    import torch
+
+    y, x = torch.meshgrid(
+        torch.arange(size, dtype=torch.float64),
+        torch.arange(size, dtype=torch.float64),
+        indexing="ij",
+    )
+    light = 0.6 + 0.4 * torch.sin(x / 11) * torch.cos(y / 7)
+    p = 0.5 + 0.45 * torch.sin(x / 3.0 + y / 5.0)  # the bright texels' share per pixel
+    lo, hi = 0.1, 0.9
+    tint = torch.tensor([1.0, 0.8, 0.6], dtype=torch.float64)[:, None, None]
+    mu = (light * (lo + (hi - lo) * p))[None] * tint
+    n = spp // 2
+    shape = (2, trials, n, 1, size, size)
+    bright = (torch.rand(shape, generator=generator, dtype=torch.float64) < p).double()
+    alpha = lo + (hi - lo) * bright  # (2, T, n, 1, H, W)
+    z = 1 + 0.5 * torch.randn(shape, generator=generator, dtype=torch.float64)
+    color = (light * alpha * z) * tint
+    albedo = alpha.expand(*shape[:3], 3, size, size) * tint / tint  # grey texels, 3 channels
+    c, a = color.mean(2), albedo.mean(2)
+    return mu, c[0], c[1], a[0], a[1]
+
+
+def guided_filters():
+    """Name -> ``f(colour, guide)`` on ``(T, 3, H, W)``: filters that read an albedo guide,
+    as the learned and classical denoisers do. ``demodulate``: divide by the guide, blur
+    (Gaussian σ = 1.5), multiply back (KPCN's and SVGF's albedo demodulation);
+    ``cross-bilateral``: a 7×7 Gaussian (σ = 2) weighted by the guide's difference
+    (σ = 0.1)."""
+    import torch
+    import torch.nn.functional as F
+
+    gauss = candidate_filters()["gauss1.5"]
+
+    def demodulate(x, g):
+        return g * gauss(x / (g + 1e-3))
+
+    def cross_bilateral(x, g, r: int = 3, sigma_s: float = 2.0, sigma_g: float = 0.1):
+        xp = F.pad(x, (r, r, r, r), mode="reflect")
+        gp = F.pad(g, (r, r, r, r), mode="reflect")
+        h, w = x.shape[-2:]
+        num = torch.zeros_like(x)
+        den = torch.zeros_like(x[:, :1])
+        for dy in range(-r, r + 1):
+            for dx in range(-r, r + 1):
+                xs = xp[..., r + dy : r + dy + h, r + dx : r + dx + w]
+                gs = gp[..., r + dy : r + dy + h, r + dx : r + dx + w]
+                d2 = (gs - g).square().mean(1, keepdim=True)
+                wgt = torch.exp(-(dx * dx + dy * dy) / (2 * sigma_s**2) - d2 / (2 * sigma_g**2))
+                num += wgt * xs
+                den += wgt
+        return num / den
+
+    return {"demodulate": demodulate, "cross-bilateral": cross_bilateral}
+
+
+def shared_guides_study(*, trials: int = 32, size: int = 64, spp: int = 4, seed: int = 0) -> dict:
+    """The estimate of filters guided by an albedo that is as noisy as the colour (a
+    sub-pixel texture, :func:`textured_samples`), with the guide shared by both halves (the
+    full buffer's albedo, what a file without ``albedo_a``/``albedo_b`` gives) and with the
+    guide halved (each half filtered with its own albedo). Per filter and guide: the bias
+    of the image-level estimate of the squared error of ``(D(A) + D(B))/2`` over trials, in
+    standard errors, and the mean estimate over the mean truth."""
+    import torch
+
+    from mcdenoise.eval.estimate import squared_error
+
+    gen = torch.Generator().manual_seed(seed)
+    mu, a, b, ga, gb = textured_samples(size, spp, trials, gen)
+    full = (ga + gb) / 2
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for name, f in guided_filters().items():
+        out[name] = {}
+        for guide, (g_a, g_b) in (("shared", (full, full)), ("halved", (ga, gb))):
+            da, db = f(a, g_a), f(b, g_b)
+            est = squared_error(da, db, a, b).mean(dim=(1, 2, 3))
+            true = ((da + db) / 2 - mu).square().mean(dim=(1, 2, 3))
+            diff = est - true
+            z = float(diff.mean() / (diff.std() / trials**0.5))
+            out[name][guide] = (z, float(est.mean() / true.mean()))
+    return out
+
+
+def shared_guides(args: argparse.Namespace) -> int:
+    r = shared_guides_study(trials=args.trials, size=args.size, spp=args.spp)
+    print(
+        f"sub-pixel texture, {args.spp} spp, {args.trials} trials of {args.size}²: bias of "
+        "the estimate in standard errors (estimate / truth)"
+    )
+    for name, by in r.items():
+        cells = ", ".join(f"{g} {z:+.1f} ({q:.2f})" for g, (z, q) in by.items())
+        print(f"  {name:16s} {cells}")
+    return 0
+
+
 # --- held-out renders ------------------------------------------------------------------------
 HELDOUT = ROOT / "data" / "generated" / "heldout-halves-3000"
 METHODS = ("noisy", "nlm", "cross-bilateral", "kalantari-xbf", "kpcn", "oidn")
@@ -284,13 +387,19 @@ def heldout_records(
     images: list[str] | None = None,
     cache: Path | None = None,
     block: int = 16,
+    share_guides: bool = False,
 ) -> list[dict]:
     """One record per (image, level, method); ``done`` holds records already measured
     (keyed ``image/spp/method``), which are kept; ``cache``: a folder keeping every image's
     halves, reference and the methods' outputs (full and per half) as ``.pt``, so that other
     estimators are measured on the same outputs without denoising again. Every estimator of
     :func:`variant_estimates` is recorded as ``estimate_<name>``; ``estimate`` is what
-    ``--estimate-error`` writes (normalised by the method's own output)."""
+    ``--estimate-error`` writes (normalised by the method's own output), ``estimate_shared``
+    what ``mcdenoise eval`` without ``--ref`` reports for several outputs (the matched median
+    of the outputs); both are the reported value (the upper bound where the estimate is below
+    its noise, ``estimate_upper``/``estimate_shared_upper``). ``share_guides``: the feature
+    halves (``albedo_a``...) are dropped first, so both halves share the full buffer's
+    guides, as in a file written before issue 36."""
     import time
 
     import torch
@@ -320,6 +429,10 @@ def heldout_records(
                 records += [done[k] for k in keys]
                 continue
             fb, _ = sanitize(load_buffers(data / img["files"]["noisy"], part=f"spp{level}"))
+            if share_guides:
+                for n in [n for n in fb.names() if n.split("_")[0] != "color"]:
+                    if n.endswith(("_a", "_b", "_a_var", "_b_var")):
+                        del fb.buffers[n]
             ha, hb = split_halves(fb)
             cfile = cache / f"{img['id']}_spp{level}.pt" if cache is not None else None
             outs: dict = {}
@@ -354,21 +467,27 @@ def heldout_records(
                 )
                 est_mean = estimate_from_outputs(out_a, out_b, fb)
                 shared = variants[method].get("_shared")  # what eval without --ref divides by
-                shared_se = (
+                est_shared = (
                     estimate_from_outputs(
                         out_a, out_b, fb, output=full, normaliser=shared, block=block
-                    ).relmse_se
+                    )
                     if shared is not None
-                    else float("nan")
+                    else None
                 )
                 true, true_corr = _relmse_terms(full, ref, ref_var)
                 mean_true, mean_corr = _relmse_terms((out_a + out_b) / 2, ref, ref_var)
                 rec = {
                     "image": img["id"], "spp": level, "method": method,
-                    "estimate": est.relmse, "estimate_se": est.relmse_se,
+                    "estimate": est.reported, "estimate_se": est.relmse_se,
+                    "estimate_upper": est.upper is not None,
                     "estimate_halves_mean": est_mean.relmse,
                     **{f"estimate_{k}": v for k, v in variants[method].items() if k[0] != "_"},
-                    "estimate_shared_med_matched_se": shared_se,
+                    "estimate_shared_med_matched_se": est_shared.relmse_se
+                    if est_shared else float("nan"),
+                    **({"estimate_shared": est_shared.reported,
+                        "estimate_shared_se": est_shared.relmse_se,
+                        "estimate_shared_upper": est_shared.upper is not None}
+                       if est_shared else {}),
                     "true": true, "true_corrected": true_corr,
                     "halves_mean_true": mean_true, "halves_mean_corrected": mean_corr,
                     "seconds": round(seconds, 3),
@@ -376,7 +495,7 @@ def heldout_records(
                 records.append(rec)
                 done[f"{img['id']}/{level}/{method}"] = rec
                 print(
-                    f"{img['id']}/{level}/{method}: estimate {est.relmse:.4g} "
+                    f"{img['id']}/{level}/{method}: estimate {est.reported:.4g} "
                     f"± {est.relmse_se:.2g} (shared {rec.get('estimate_shared_med_matched', 0):.4g}, oracle "
                     f"{rec['estimate_oracle']:.4g}), true {true:.4g} (corrected {true_corr:.4g})",
                     file=sys.stderr,
@@ -480,6 +599,8 @@ def analyse(records: list[dict], truth: str = "true_corrected", estimate: str = 
         out["levels"][level] = {
             "pairs": len(rs),
             "within_factor": sum(ok) / len(ok),
+            "zeros": sum(r[estimate] == 0 for r in rs),
+            "upper_bounds": sum(bool(r.get(estimate + "_upper")) for r in rs),
             "spearman_mean": sum(rhos) / len(rhos) if rhos else float("nan"),
             # the truth within ±2 reported standard errors (where the estimate has one)
             "within_2se": sum(abs(r[estimate] - r[truth]) <= 2 * r[estimate + "_se"] for r in rs)
@@ -513,14 +634,16 @@ def _print_analysis(a: dict, brief: bool = False) -> None:
             f"{level}: {v['within_factor']:.3f} {v['spearman_mean']:.3f}"
             for level, v in a["levels"].items()
         )
-        print(f"{a['estimate']:26s} vs {a['truth']:16s} {cells}")
+        zeros = sum(v["zeros"] for v in a["levels"].values())
+        print(f"{a['estimate']:26s} vs {a['truth']:16s} {cells}  zeros {zeros}")
         return
     print(f"estimate '{a['estimate']}' against truth '{a['truth']}':")
     for level, v in a["levels"].items():
         print(
             f"  {level:>3} spp: within {FACTOR}x {v['within_factor']:.3f} of {v['pairs']} pairs; "
             f"Spearman rho {v['spearman_mean']:.3f} (mean of {v['images']} images); "
-            f"truth within 2 SE {v['within_2se']:.2f}"
+            f"truth within 2 SE {v['within_2se']:.2f}; exact zeros {v['zeros']}, "
+            f"upper bounds {v['upper_bounds']}"
         )
     for k, v in a["methods"].items():
         print(
@@ -552,13 +675,14 @@ def heldout(args: argparse.Namespace) -> int:
             images=args.images.split(",") if args.images else None,
             cache=Path(args.cache) if args.cache else None,
             block=args.block,
+            share_guides=args.share_guides,
         )
         if args.json:
             Path(args.json).write_text(json.dumps({"records": records}, indent=1))
     have = set.intersection(*(set(r) for r in records)) if records else set()
     pairs = [("true_corrected", "estimate"), ("true", "estimate")]
     pairs += [("true_corrected", k) for k in sorted(have) if k.startswith("estimate_")
-              and not k.endswith("_se") and k != "estimate_halves_mean"]  # fmt: skip
+              and not k.endswith(("_se", "_upper")) and k != "estimate_halves_mean"]  # fmt: skip
     pairs += [("halves_mean_corrected", "estimate_halves_mean")]
     for truth, est in pairs:
         if est in have and (not args.only or est in args.only.split(",")):
@@ -583,6 +707,10 @@ def main(argv: list[str] | None = None) -> int:
     sy.add_argument("--size", type=int, default=128)
     sy.add_argument("--spp", type=int, default=8)
     sy.add_argument("--block", type=int, default=16)
+    sg = sub.add_parser("shared-guides", help="bias from guides shared by both halves")
+    sg.add_argument("--trials", type=int, default=64)
+    sg.add_argument("--size", type=int, default=128)
+    sg.add_argument("--spp", type=int, default=4)
     ho = sub.add_parser("heldout", help="estimate vs truth on held-out renders with halves")
     ho.add_argument("--data", default=str(HELDOUT))
     ho.add_argument("--spp", default="4,16,64")
@@ -601,10 +729,20 @@ def main(argv: list[str] | None = None) -> int:
     ho.add_argument("--block", type=int, default=16, help="block side of the standard errors")
     ho.add_argument("--only", default=None, help="only these estimators (comma-separated)")
     ho.add_argument(
+        "--share-guides",
+        action="store_true",
+        help="drop the feature halves first: both halves share the guides (before issue 36)",
+    )
+    ho.add_argument(
         "--from-json", nargs="+", default=None, help="only analyse the records of these files"
     )
     args = ap.parse_args(argv)
-    cmds = {"render-cost": render_cost, "synthetic": synthetic, "heldout": heldout}
+    cmds = {
+        "render-cost": render_cost,
+        "synthetic": synthetic,
+        "shared-guides": shared_guides,
+        "heldout": heldout,
+    }
     return cmds[args.cmd](args)
 
 

@@ -217,7 +217,11 @@ def _estimated(outputs, out_dir):
         rerun=lambda half, method, params: denoise(half, method, params=params).image,
         log=lambda line: click.echo(f"mcdenoise: {line}", err=True),
     )
-    if not any(r["relmse_estimated"] is not None for r in rows if r["method"] != "noisy"):
+    if not any(
+        r["relmse_estimated"] is not None or r.get("relmse_estimated_upper") is not None
+        for r in rows
+        if r["method"] != "noisy"
+    ):
         raise click.UsageError(
             "Missing option '--ref': no output here carries an estimated error (denoise an "
             "input with half buffers with --estimate-error to evaluate without a reference)."

@@ -97,11 +97,21 @@ class JobOutcome:
         extra = f", {res.clamped} values clamped to the half range" if res.clamped else ""
         fixed = sum(res.result.repaired.values())
         extra += f", {fixed} NaN/Inf/negative input values repaired" if fixed else ""
-        if res.estimate:
+        est = res.estimate
+        if est and est.get("relmse_estimated") is not None:
             extra += (
-                f", relMSE {res.estimate['relmse_estimated']:.4g} "
-                f"± {res.estimate['relmse_estimated_se']:.2g} (estimated from the halves)"
+                f", relMSE {est['relmse_estimated']:.4g} "
+                f"± {est['relmse_estimated_se']:.2g} (estimated from the halves)"
             )
+        elif est and est.get("relmse_estimated_upper") is not None:
+            extra += (
+                f", relMSE < {est['relmse_estimated_upper']:.3g} (estimated from the halves: "
+                f"below its own noise, ± {est['relmse_estimated_se']:.2g})"
+            )
+        elif est:
+            extra += f", {est.get('estimate_note', 'no estimate')}"
+        if est and est.get("estimate_warning"):
+            extra += f"; WARNING {est['estimate_warning']}"
         return (
             f"{res.output}  [{res.result.method}, {res.result.seconds:.2f} s on "
             f"{res.result.device}{extra}]"

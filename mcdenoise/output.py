@@ -21,7 +21,7 @@ from mcdenoise.denoise import DenoiseResult, denoise
 from mcdenoise.denoise_files import ReadOptions, WriteOptions, check_output_path
 from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.buffers import FeatureBuffers
-from mcdenoise.registry import Method
+from mcdenoise.registry import Method, get_method
 
 __all__ = [
     "SCENE_ATTRIBUTES",
@@ -95,7 +95,9 @@ def denoise_file(
     if write.estimate_error:  # the same method on each half, judged against the other
         name = result.method
         run = lambda b: denoise(b, name, params=params, device=device).image  # noqa: E731
-        estimate = estimate_record(run, buffers, result.image)
+        m = get_method(name)
+        reads = (*m.requires, *m.uses)
+        estimate = estimate_record(run, buffers, result.image, method=name, reads=reads)
     return write_result(src, dst, buffers, result, read, write, estimate)
 
 
@@ -143,7 +145,8 @@ def write_result(
     if buffers.spp is not None:
         attrs["mcdenoise:spp"] = int(buffers.spp)
     for key, value in (estimate or {}).items():
-        attrs[f"mcdenoise:{key}"] = value
+        if value is not None:  # a null of the JSON record is no header attribute
+            attrs[f"mcdenoise:{key}"] = value
     attrs.update(attributes or {})
     report = save_buffers(
         dst, out, half=write.half, compression=write.compression, attributes=attrs

@@ -72,10 +72,26 @@ Relative MSE
     method's own errors shrink or swell its own estimate. The image value is the mean over
     pixels and channels; its uncertainty is the standard error over ``block × block``
     blocks (pixels of one block share a filter footprint, blocks barely do), so it reflects
-    heavy tails too. The per-pixel estimate may be negative (it is unbiased, not a square);
-    the image value is clamped at 0. The normaliser does not touch the squared-error
+    heavy tails too. The per-pixel estimate may be negative (it is unbiased, not a square).
+    An image value below its own standard error is not reported as a value (a clamped ``0.0``
+    would read as a perfect output): it is reported as an upper bound,
+    ``relmse_estimated_upper`` = max(mean, 0) + 2 standard errors (one-sided, about 97.5 %
+    under a normal approximation), shown as ``< x``. The normaliser does not touch the squared-error
     estimate, which stays unbiased; a normaliser that depends on the noise makes relMSE's
     ratio a little biased either way, as the output itself did.
+
+Guides shared by both halves
+    The construction needs ``D_A`` to be independent of ``B``'s noise. A filter guided by
+    features (albedo, normal, depth, position) breaks that when the features are not halved
+    too: the full buffer's albedo holds B's samples, and on a texture finer than a pixel it is
+    as noisy as the colour, so ``D_A`` follows B's noise, the cross term ``(D_A − B)`` no
+    longer averages out, and the estimate comes out low (2–5× on textured scenes, issue 36).
+    ``mcdenoise render`` halves every feature. An input whose colour is halved and whose
+    guides are not (:func:`mcdenoise.io.buffers.shared_guides`) is still estimated, with
+    ``estimate_warning`` saying so, and with a measured check of how much the shared guides
+    move it: the estimate again with those guides smoothed by a 3×3 box
+    (``relmse_estimated_smoothed_guides``; less of their noise reaches the filter, so a
+    biased estimate rises).
 
 Every figure measured for these choices (spreads, winsorising, normalisers, the radius)
 is in docs/results/estimate.md.
@@ -111,7 +127,14 @@ from mcdenoise.filters.two_buffer import (
     squared_error,
 )
 from mcdenoise.io.atomic import write_text_atomic
-from mcdenoise.io.buffers import FeatureBuffers, check_halves, half_inputs, has_halves, sanitize
+from mcdenoise.io.buffers import (
+    FeatureBuffers,
+    check_halves,
+    half_inputs,
+    has_halves,
+    sanitize,
+    shared_guides,
+)
 from mcdenoise.losses import RELMSE_EPS
 
 __all__ = [
@@ -220,11 +243,13 @@ class ErrorEstimate:
             (may be negative).
         relmse_map: ``(H, W)`` per-pixel relMSE estimate (channel mean).
         relmse: image relMSE estimate (mean of ``relmse_map``, clamped at 0).
-        relmse_se: its standard error over blocks.
+        relmse_se: its standard error over blocks (over pixels for an image of one block).
         mse: image MSE estimate (clamped at 0).
         judged: what the estimate is of: ``"halves-mean"`` (``(D(A) + D(B)) / 2``, exact in
             expectation) or ``"full"`` (``D`` on the full buffer, through the relation in the
             module docstring).
+        upper: the upper bound reported instead of ``relmse`` when the mean is below its
+            standard error (``max(mean, 0) + 2·se``), else ``None``.
     """
 
     squared_error: Tensor
@@ -233,15 +258,33 @@ class ErrorEstimate:
     relmse_se: float
     mse: float
     judged: str
+    upper: float | None = None
 
-    def to_dict(self) -> dict[str, float | str]:
-        """The scalars, for JSON records."""
-        return {
-            "relmse_estimated": self.relmse,
+    @property
+    def reported(self) -> float:
+        """What a report shows: the estimate, or its upper bound when it is below its noise."""
+        return self.relmse if self.upper is None else self.upper
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scalars, for JSON records: ``relmse_estimated`` is ``None`` (null) when only
+        ``relmse_estimated_upper`` is known."""
+        out: dict[str, Any] = {
+            "relmse_estimated": self.relmse if self.upper is None else None,
             "relmse_estimated_se": self.relmse_se,
             "mse_estimated": self.mse,
             "estimate_of": self.judged,
         }
+        if self.upper is not None:
+            out["relmse_estimated_upper"] = self.upper
+        return out
+
+
+def upper_bound(mean: float, se: float) -> float | None:
+    """The upper bound reported for an image estimate ``mean`` below its standard error
+    ``se`` (``max(mean, 0) + 2·se``), or ``None`` when the mean stands above its noise."""
+    if not math.isfinite(se) or mean >= se:
+        return None
+    return max(mean, 0.0) + 2.0 * se
 
 
 def estimate_from_outputs(
@@ -274,7 +317,10 @@ def estimate_from_outputs(
     means, counts = block_means(rel, block)
     n = means.numel()
     mean = float((means * counts).sum() / counts.sum())
-    se = float(means.std(unbiased=True) / n**0.5) if n > 1 else float("nan")
+    if n > 1:
+        se = float(means.std(unbiased=True) / n**0.5)
+    else:  # one block: pixels are correlated, so this understates the spread
+        se = float(rel.std() / rel.numel() ** 0.5) if rel.numel() > 1 else float("nan")
     return ErrorEstimate(
         squared_error=sq.float(),
         relmse_map=rel.float(),
@@ -282,6 +328,7 @@ def estimate_from_outputs(
         relmse_se=se,
         mse=max(float(sq.mean()), 0.0),
         judged="halves-mean" if output is None else "full",
+        upper=upper_bound(mean, se),
     )
 
 
@@ -305,28 +352,78 @@ def estimate_error(
     )
 
 
-def estimate_record(denoiser: Denoiser, buffers: FeatureBuffers, output: Tensor) -> dict[str, Any]:
+#: The warning an estimate carries when noisy guides are shared by both halves.
+SHARED_WARNING = "guides shared by both halves ({}): the estimate is biased low"
+#: Radius of the box that smooths shared guides for the check of their effect (3×3).
+GUIDE_CHECK_RADIUS = 1
+
+
+def smoothed_guides(buffers: FeatureBuffers, names: Sequence[str]) -> FeatureBuffers:
+    """``buffers`` with the features ``names`` replaced by their 3×3 box mean (their
+    variances divided by 9, as for independent pixels): less of their noise, which both
+    halves share, reaches a filter guided by them."""
+    out = buffers.to()
+    out.buffers = dict(buffers.buffers)
+    for n in names:
+        out.buffers[n] = box_mean(buffers[n][None].double(), GUIDE_CHECK_RADIUS)[0].to(buffers[n])
+        if n + "_var" in buffers.buffers:
+            out.buffers[n + "_var"] = buffers[n + "_var"] / 9
+    return out
+
+
+def estimate_record(
+    denoiser: Denoiser,
+    buffers: FeatureBuffers,
+    output: Tensor,
+    *,
+    method: str = "the method",
+    reads: Sequence[str] | None = None,
+) -> dict[str, Any]:
     """What ``mcdenoise denoise --estimate-error`` records: ``denoiser`` run on each half of
     ``buffers`` (repaired as the denoiser's input is, :func:`mcdenoise.io.sanitize`), the
     estimate of the error of ``output`` (the denoiser on the full buffer), as the JSON fields
-    ``relmse_estimated``, ``relmse_estimated_se``, ``mse_estimated``, ``estimate_of``,
-    ``estimate_normaliser`` (:func:`matched_normaliser` of the output) and
-    ``estimate_seconds``."""
+    ``relmse_estimated`` (or ``relmse_estimated_upper``, :class:`ErrorEstimate`),
+    ``relmse_estimated_se``, ``mse_estimated``, ``estimate_of``, ``estimate_normaliser``
+    (:func:`matched_normaliser` of the output) and ``estimate_seconds``.
+
+    ``reads``: the features the method reads; those of them that both halves share
+    (:func:`mcdenoise.io.buffers.shared_guides`) add ``estimate_warning`` and
+    ``relmse_estimated_smoothed_guides`` (module docstring). A method that does not run on
+    one half alone (``nfor`` needs both halves itself) gets no estimate:
+    ``relmse_estimated`` is ``None`` and ``estimate_note`` says why.
+    """
 
     t0 = time.perf_counter()
     half_a, half_b = split_halves(buffers)
     try:
         out_a, out_b = denoiser(half_a), denoiser(half_b)
     except InputError as e:  # e.g. nfor: a half has no halves of its own
-        raise InputError(f"--estimate-error runs the method on each half alone: {e}") from None
+        why = " ".join(str(e).split())
+        note = (
+            f"no estimate: {method} uses both halves itself, so it cannot be run on one half "
+            "and judged by the other"
+            if "half buffers" in why
+            else f"no estimate: {method} did not run on one half alone ({why})"
+        )
+        return {
+            "relmse_estimated": None,
+            "estimate_note": note,
+            "estimate_seconds": round(time.perf_counter() - t0, 6),
+        }
     clean, _ = sanitize(buffers)
     norm = matched_normaliser(output, clean["color"])
     est = estimate_from_outputs(out_a, out_b, clean, output=output, normaliser=norm)
-    return {
-        **est.to_dict(),
-        "estimate_normaliser": OWN,
-        "estimate_seconds": round(time.perf_counter() - t0, 6),
-    }
+    record: dict[str, Any] = {**est.to_dict(), "estimate_normaliser": OWN}
+    shared = shared_guides(buffers, reads)
+    if shared:
+        record["estimate_warning"] = SHARED_WARNING.format(", ".join(shared))
+        smooth_a, smooth_b = split_halves(smoothed_guides(buffers, shared))
+        check = estimate_from_outputs(
+            denoiser(smooth_a), denoiser(smooth_b), clean, output=output, normaliser=norm
+        )
+        record["relmse_estimated_smoothed_guides"] = check.reported
+    record["estimate_seconds"] = round(time.perf_counter() - t0, 6)
+    return record
 
 
 # --- reports without a reference (mcdenoise eval without --ref) ------------------------------
@@ -336,12 +433,23 @@ ESTIMATE_COLUMNS = (
     "method",
     "spp",
     "relmse_estimated",
+    "relmse_estimated_upper",
     "relmse_estimated_se",
     "estimate_of",
     "normaliser",
     "file",
+    "warning",
     "note",
 )
+
+
+def shown_value(row: dict[str, Any], digits: int = 5) -> str:
+    """A row's estimate as a report shows it: the value, ``< bound`` when only an upper bound
+    is known (the estimate is below its own noise), ``-`` when there is none."""
+    v, up = row.get("relmse_estimated"), row.get("relmse_estimated_upper")
+    if v is not None:
+        return f"{v:.{digits}g}"
+    return f"< {up:.3g}" if up is not None else "-"
 
 
 def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
@@ -352,11 +460,12 @@ def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
         "normalised by",
     ]
     for r in rows:
-        v, se = r["relmse_estimated"], r["relmse_estimated_se"]
-        val = f"{v:14.5g}" if v is not None else f"{'-':>14s}"
+        se = r["relmse_estimated_se"]
+        val = f"{shown_value(r):>14s}"
         unc = f"{se:10.2g}" if se is not None else f"{'':>10s}"
         spp = str(r["spp"]) if r["spp"] is not None else "-"
-        note = "; ".join(x for x in (r.get("normaliser") or "", r["note"]) if x)
+        warn = f"WARNING {r['warning']}" if r.get("warning") else ""
+        note = "; ".join(x for x in (warn, r.get("normaliser") or "", r["note"]) if x)
         scene, method = printable(str(r["scene"])), printable(str(r["method"]))
         lines.append(f"{scene:28s} {spp:>5s} {method:18s} {val} {unc}  {note}")
     return "\n".join(lines)
@@ -364,6 +473,8 @@ def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
 
 def _cell(value: Any) -> str:
     """An HTML cell's text: floats to 4 significant digits (the JSON and CSV keep them all)."""
+    if value is None:
+        return ""
     return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
@@ -396,7 +507,11 @@ def write_estimate_report(
     write_text_atomic(paths["csv"], buf.getvalue())
     cells = "".join(
         "<tr>"
-        + "".join(f"<td>{html.escape(_cell(r.get(c, '')))}</td>" for c in ESTIMATE_COLUMNS)
+        + "".join(
+            f"<td>{html.escape(shown_value(r, 4) if c == 'relmse_estimated' else _cell(r.get(c)))}"
+            "</td>"
+            for c in ESTIMATE_COLUMNS
+        )
         + "</tr>"
         for r in rows
     )
@@ -408,7 +523,9 @@ def write_estimate_report(
         "± is one standard error over 16×16 blocks. <i>normaliser</i>: what relMSE divides "
         "by — the median of the outputs of one input when several are given (every method "
         "judged against the same image), else the output itself; either with its 5×5 local "
-        "mean matched to the noisy input's.</p>"
+        "mean matched to the noisy input's. <i>&lt; x</i>: the estimate is below its own "
+        "standard error, x is an upper bound (mean + 2 se). <i>warning</i>: noisy guides "
+        "shared by both halves bias the estimate low.</p>"
         f"<table border='1'><tr>{head}</tr>{cells}</table>",
     )
     return paths

@@ -16,14 +16,22 @@ from mcdenoise.errors import InputError, McdenoiseError
 from mcdenoise.eval.estimate import (
     MATCHED,
     OWN_OLD,
+    SHARED_WARNING,
     ErrorEstimate,
     estimate_from_outputs,
     matched_normaliser,
     pseudo_reference,
+    shown_value,
     split_halves,
 )
 from mcdenoise.io import load_buffers, probe_exr
-from mcdenoise.io.buffers import FeatureBuffers, check_halves, has_halves, sanitize
+from mcdenoise.io.buffers import (
+    FeatureBuffers,
+    check_halves,
+    has_halves,
+    sanitize,
+    shared_guides,
+)
 from mcdenoise.registry import header_method
 
 if TYPE_CHECKING:
@@ -87,17 +95,22 @@ def estimate_files(
             "method": str(attrs.get("mcdenoise:method", "?")),
             "spp": attrs.get("mcdenoise:spp"),
             "relmse_estimated": attrs.get("mcdenoise:relmse_estimated"),
+            "relmse_estimated_upper": attrs.get("mcdenoise:relmse_estimated_upper"),
             "relmse_estimated_se": attrs.get("mcdenoise:relmse_estimated_se"),
             "estimate_of": attrs.get("mcdenoise:estimate_of"),
             "normaliser": str(attrs.get("mcdenoise:estimate_normaliser", OWN_OLD))
-            if attrs.get("mcdenoise:relmse_estimated") is not None
+            if _has_estimate(attrs)
             else "",
             "file": str(f),
+            "warning": str(attrs.get("mcdenoise:estimate_warning") or ""),
             "note": "",
             "estimated": True,
         }
-        if row["relmse_estimated"] is None:
-            row["note"] = "no estimate: denoise with --estimate-error (an input with halves)"
+        if not _has_estimate(attrs):
+            row["note"] = str(
+                attrs.get("mcdenoise:estimate_note")
+                or "no estimate: denoise with --estimate-error (an input with halves)"
+            )
         rows.append(row)
         src = attrs.get("mcdenoise:source")
         if src:
@@ -122,8 +135,7 @@ def estimate_files(
         rows.append(
             {
                 **_noisy_row(src, fb),
-                "relmse_estimated": est.relmse,
-                "relmse_estimated_se": est.relmse_se,
+                **_values(est),
                 "estimate_of": "noisy input",
                 "normaliser": shared if len(colors) > 1 else f"the output, {MATCHED}",
             }
@@ -151,7 +163,7 @@ def _renormalise(
     clean, _ = sanitize(fb)
     for f, attrs in outs:
         row = attrs["_row"]
-        if row["relmse_estimated"] is None:
+        if not _has_estimate(attrs):
             continue
         method = row["method"]
         try:
@@ -173,12 +185,32 @@ def _renormalise(
             )
             continue
         est = estimate_from_outputs(out_a, out_b, clean, normaliser=pseudo)
+        header = shown_value(row)
+        guides = shared_guides(fb, (*m.requires, *m.uses))
         row.update(
-            relmse_estimated=est.relmse,
-            relmse_estimated_se=est.relmse_se,
+            **_values(est),
             normaliser=shared,
-            note=f"header value {float(row['relmse_estimated']):.4g} ({row['normaliser']})",
+            note=f"header value {header} ({row['normaliser']})",
+            warning=SHARED_WARNING.format(", ".join(guides)) if guides else "",
         )
+
+
+def _has_estimate(attrs: dict[str, Any]) -> bool:
+    """Whether an output's header holds an estimate (a value or an upper bound)."""
+    return any(
+        attrs.get(f"mcdenoise:{k}") is not None
+        for k in ("relmse_estimated", "relmse_estimated_upper")
+    )
+
+
+def _values(est: ErrorEstimate) -> dict[str, Any]:
+    """A row's estimate fields from ``est``: the value, or its upper bound below its noise."""
+    d = est.to_dict()
+    return {
+        "relmse_estimated": d["relmse_estimated"],
+        "relmse_estimated_upper": d.get("relmse_estimated_upper"),
+        "relmse_estimated_se": d["relmse_estimated_se"],
+    }
 
 
 def _header_params(text: Any) -> dict[str, Any]:
@@ -205,10 +237,12 @@ def _noisy_row(src: str, fb: FeatureBuffers | None) -> dict[str, Any]:
         "method": "noisy",
         "spp": fb.spp if fb is not None else None,
         "relmse_estimated": None,
+        "relmse_estimated_upper": None,
         "relmse_estimated_se": None,
         "estimate_of": None,
         "normaliser": "",
         "file": src,
+        "warning": "",
         "note": "",
         "estimated": True,
     }

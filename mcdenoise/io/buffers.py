@@ -53,7 +53,7 @@ which raises :class:`MissingFeatureError` naming what is missing and what the fi
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -365,6 +365,28 @@ def has_halves(buffers: FeatureBuffers, name: str = "color") -> bool:
     return all(name + h in buffers for h in HALF_SUFFIXES)
 
 
+def shared_guides(buffers: FeatureBuffers, reads: Sequence[str] | None = None) -> list[str]:
+    """The noisy features of ``buffers`` that both halves would share: present, not halved
+    (no ``albedo_a``/``albedo_b``) while the colour is, and not known to be noise-free (a
+    ``<feature>_var`` of zeros everywhere). ``reads``: only these features (what a method
+    reads); ``None``: every feature.
+
+    A guide shared by both halves holds the samples of both, so a filter run on half A and
+    guided by it follows half B's noise too, and the two-buffer error estimate of that filter
+    comes out low (:mod:`mcdenoise.eval.estimate`). Empty when the colour is not halved.
+    """
+    if not has_halves(buffers):
+        return []
+    out = []
+    for f in HALVABLE[1:]:
+        if f not in buffers or has_halves(buffers, f) or (reads is not None and f not in reads):
+            continue
+        var = buffers.get(f + VAR_SUFFIX)
+        if var is None or bool((var > 0).any()):
+            out.append(f)
+    return out
+
+
 def half_inputs(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffers]:
     """The two half-sample inputs of ``buffers``: in each, ``color`` is one half
     (``color_a`` or ``color_b``), ``color_var`` its variance (else twice the full one, the
@@ -373,9 +395,8 @@ def half_inputs(buffers: FeatureBuffers) -> tuple[FeatureBuffers, FeatureBuffers
     buffers remain in them (so a method that uses halves does not recurse on a half).
 
     Features that are not halved are shared by both halves. They hold the samples of both
-    halves, so a filter guided by them sees a little of the other half's noise; the renderer
-    halves the features that are noisy (depth of field) for this reason
-    (:mod:`mcdenoise.render.passes`). Used by the reference-free estimate
+    halves, so a filter guided by them sees the other half's noise (:func:`shared_guides`);
+    the renderer halves every feature for this reason (:mod:`mcdenoise.render.passes`). Used by the reference-free estimate
     (:mod:`mcdenoise.eval.estimate`) and the per-region selection
     (:mod:`mcdenoise.methods.selection`), which say what a missing half means for them.
 

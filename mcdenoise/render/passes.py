@@ -19,11 +19,14 @@ Halves (``config.halves``)
     (:func:`~mcdenoise.render.jobs.half_level_passes`), each pass with the next noisy seed;
     A and B are pooled separately over the levels and written as ``color_a``/``color_b``
     (:func:`~mcdenoise.render.moments.buffers_from_halves`) at every even level, the full
-    buffers being their mean. Features are halved where they are noisy: with a thin lens
-    (``dof``) every feature varies over the lens samples of a pixel; without one the features
-    of a pixel differ only across its footprint (edges, texture), and are not halved. (The
-    renderer has no motion blur: motion is only the sequences' per-frame vectors.) A pass
-    record gets ``"half": "a"`` or ``"b"``.
+    buffers being their mean. Every feature of the plan is halved with the colour
+    (``albedo_a``, ``normal_b``...): a guide is noisy wherever the samples of a pixel see
+    different surfaces or texels (a sub-pixel texture, foliage, an edge, a thin lens), and a
+    guide shared by both halves carries each half's noise into the other's filtered output,
+    which biases the reference-free estimate low (:mod:`mcdenoise.eval.estimate`, issue 36).
+    The features come from the same passes as the colour, so halving them costs file size,
+    not render time. (The renderer has no motion blur: motion is only the sequences'
+    per-frame vectors.) A pass record gets ``"half": "a"`` or ``"b"``.
 
 Determinism: the same spec, seed, settings and variant give identical pixel data.
 """
@@ -148,7 +151,7 @@ def _render_levels(
     level_records: list[dict[str, Any]] = []
     total: Moments | None = None
     halves: list[Moments | None] = [None, None]
-    halve = ("color", *plan.features) if plan.thinlens else ("color",)
+    halve = ("color", *plan.features)
     cumulative, k = 0.0, 0
     if config.halves:
         increments = half_level_passes(config.spp, config.pass_spp)

@@ -12,6 +12,8 @@ from click.testing import CliRunner
 from mcdenoise_cli.main import main
 from shared_inputs import noisy_with_halves
 
+from mcdenoise.io import probe_exr
+
 
 def run(*args: str):
     return CliRunner().invoke(main, list(args))
@@ -86,14 +88,23 @@ def test_eval_without_ref_and_without_estimates_is_refused(tmp_path: Path) -> No
     assert not (tmp_path / "rep").exists()
 
 
-def test_a_method_that_needs_halves_cannot_be_judged_by_them(tmp_path: Path) -> None:
+def test_a_method_that_needs_halves_is_written_with_no_estimate(tmp_path: Path) -> None:
     """nfor runs on the halves itself: on one half alone it has none, so --estimate-error
-    refuses it in one line and writes nothing."""
+    writes its output and records why there is no estimate (issue 36), and eval without a
+    reference says so in its row."""
     src = noisy_with_halves(tmp_path / "in.exr")
     out = tmp_path / "nfor.exr"
     r = run("denoise", str(src), "-m", "nfor", "--estimate-error", "-o", str(out))
-    # a slow-machine warning may come first; the error itself is one line
-    err = [x for x in r.stderr.strip().splitlines() if not x.startswith("mcdenoise: warning")]
-    assert r.exit_code != 0 and len(err) == 1, err
-    assert "--estimate-error runs the method on each half alone" in err[0] and "color_a" in err[0]
-    assert not out.exists()
+    assert r.exit_code == 0, r.stderr
+    assert "no estimate: nfor uses both halves itself" in r.stdout
+    attrs = probe_exr(out)[0].attributes
+    assert "mcdenoise:relmse_estimated" not in attrs
+    assert attrs["mcdenoise:estimate_note"].startswith("no estimate: nfor uses both halves")
+    other = tmp_path / "xbf.exr"
+    r = run("denoise", str(src), "-m", "cross-bilateral", "--estimate-error", "-o", str(other))
+    assert r.exit_code == 0, r.stderr
+    r = run("eval", str(out), str(other), "-o", str(tmp_path / "rep"))
+    assert r.exit_code == 0, r.stderr
+    rows = json.loads((tmp_path / "rep" / "estimate.json").read_text())["rows"]
+    nfor = next(x for x in rows if x["method"] == "nfor")
+    assert nfor["relmse_estimated"] is None and "uses both halves" in nfor["note"]
