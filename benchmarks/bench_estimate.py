@@ -388,6 +388,7 @@ def heldout_records(
     cache: Path | None = None,
     block: int = 16,
     share_guides: bool = False,
+    half_noise: str = "half",
 ) -> list[dict]:
     """One record per (image, level, method); ``done`` holds records already measured
     (keyed ``image/spp/method``), which are kept; ``cache``: a folder keeping every image's
@@ -434,6 +435,11 @@ def heldout_records(
                     if n.endswith(("_a", "_b", "_a_var", "_b_var")):
                         del fb.buffers[n]
             ha, hb = split_halves(fb)
+            if half_noise == "full":  # each half told the full buffer's noise level
+                for h in (ha, hb):
+                    for n in [n for n in h.names() if n.endswith("_var")]:
+                        h.buffers[n] = h.buffers[n] / 2
+                    h.spp = fb.spp
             cfile = cache / f"{img['id']}_spp{level}.pt" if cache is not None else None
             outs: dict = {}
             if cfile is not None and cfile.is_file():
@@ -530,9 +536,25 @@ def variant_estimates(fb, outs: dict, ref) -> dict[str, dict]:
     denoised = [o[0].double() for m, o in outs.items() if m != "noisy"]
     box2 = lambda t: box_mean(t[None], 2)[0]  # noqa: E731
 
+    def med3(img):  # the pixelwise median of the image and the two halves
+        return torch.stack([img, a, b]).median(0).values
+
+    vx = box_mean(((va + vb) / 4)[None], 1)[0]  # the input's variance of the mean, 3×3
+
+    def shrunk(img, k):  # towards the input where they differ by more than its noise explains
+        d2 = (x - img).square()
+        return img + (x - img) * d2 / (d2 + k * vx + 1e-12)
+
     def normalisers(img, tag):
+        m = matched_normaliser(img, x)
         return {
             tag: img,
+            f"{tag}_med3": med3(img),
+            f"{tag}_matched_med3": med3(m),
+            f"{tag}_shrunk9": shrunk(img, 9),
+            f"{tag}_matched_shrunk9": shrunk(m, 9),
+            f"{tag}_matched_shrunk4": shrunk(m, 4),
+            f"{tag}_matched_shrunk25": shrunk(m, 25),
             f"{tag}_matched": matched_normaliser(img, x),
             f"{tag}_matched_r1": matched_normaliser(img, x, 1),
             f"{tag}_plus": img + box2(x - img).clamp_min(0),
@@ -676,6 +698,7 @@ def heldout(args: argparse.Namespace) -> int:
             cache=Path(args.cache) if args.cache else None,
             block=args.block,
             share_guides=args.share_guides,
+            half_noise=args.half_noise,
         )
         if args.json:
             Path(args.json).write_text(json.dumps({"records": records}, indent=1))
@@ -728,6 +751,12 @@ def main(argv: list[str] | None = None) -> int:
     ho.add_argument("--brief", action="store_true", help="one line per estimator")
     ho.add_argument("--block", type=int, default=16, help="block side of the standard errors")
     ho.add_argument("--only", default=None, help="only these estimators (comma-separated)")
+    ho.add_argument(
+        "--half-noise",
+        choices=("half", "full"),
+        default="half",
+        help="full: each half's variances halved and its spp set to the full count",
+    )
     ho.add_argument(
         "--share-guides",
         action="store_true",

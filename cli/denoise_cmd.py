@@ -78,7 +78,9 @@ from tqdm import tqdm
     help="Estimate each output's relMSE without a reference, from the input's two half "
     "buffers (mcdenoise render --halves): the method also runs on each half, judged against "
     "the other. Written as mcdenoise:relmse_estimated (and _se) in the header and "
-    "relmse_estimated in --json.",
+    "relmse_estimated in --json; below its own noise as an upper bound "
+    "(relmse_estimated_upper); a method that uses both halves itself (nfor) gets a note "
+    "instead.",
 )
 @click.option(
     "-v",

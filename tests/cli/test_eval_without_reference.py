@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 from click.testing import CliRunner
 from mcdenoise_cli.main import main
 from shared_inputs import noisy_with_halves
@@ -108,3 +109,47 @@ def test_a_method_that_needs_halves_is_written_with_no_estimate(tmp_path: Path) 
     rows = json.loads((tmp_path / "rep" / "estimate.json").read_text())["rows"]
     nfor = next(x for x in rows if x["method"] == "nfor")
     assert nfor["relmse_estimated"] is None and "uses both halves" in nfor["note"]
+
+
+def test_shared_noisy_guides_are_estimated_with_a_stated_warning(tmp_path: Path) -> None:
+    """A file with colour halves but one noisy albedo for both (as renders before issue 36):
+    the estimate is written with the warning in the header, the summary line, the JSON and
+    the report, and with the smoothed-guide check; halved guides carry no warning."""
+    from mcdenoise.io import FeatureBuffers, load_buffers, save_buffers
+
+    src = noisy_with_halves(tmp_path / "in.exr")
+    fb = load_buffers(src)
+    g = torch.Generator().manual_seed(4)
+    albedo_a = 0.2 + 0.6 * torch.rand(3, 24, 24, generator=g)
+    albedo_b = 0.2 + 0.6 * torch.rand(3, 24, 24, generator=g)
+    shared = dict(fb.buffers) | {
+        "albedo": (albedo_a + albedo_b) / 2,
+        "albedo_var": (albedo_a - albedo_b).square() / 4,
+    }
+    save_buffers(tmp_path / "shared.exr", FeatureBuffers(shared, spp=8))
+    save_buffers(
+        tmp_path / "halved.exr",
+        FeatureBuffers(shared | {"albedo_a": albedo_a, "albedo_b": albedo_b}, spp=8),
+    )
+    outs = tmp_path / "outs"
+    outs.mkdir()
+    for name in ("shared", "halved"):
+        for m in ("cross-bilateral", "nlm"):
+            out = outs / f"{name}_{m}.exr"
+            r = run("denoise", str(tmp_path / f"{name}.exr"), "-m", m, "--estimate-error",
+                    "-o", str(out), "--threads", "1")  # fmt: skip
+            assert r.exit_code == 0, r.output
+            attrs = probe_exr(out)[0].attributes
+            warned = "guides shared by both halves (albedo" in r.stdout
+            assert warned == (name == "shared"), (name, m, r.stdout)
+            assert ("mcdenoise:estimate_warning" in attrs) == warned
+            assert ("mcdenoise:relmse_estimated_smoothed_guides" in attrs) == warned
+    r = run("eval", *(str(p) for p in sorted(outs.glob("shared_*"))), "-o", str(tmp_path / "rep"))
+    assert r.exit_code == 0, r.output
+    rows = json.loads((tmp_path / "rep" / "estimate.json").read_text())["rows"]
+    by = {row["method"]: row for row in rows}
+    for m in ("cross-bilateral", "nlm"):  # both read the albedo (nlm as its joint guide)
+        assert by[m]["warning"].startswith("guides shared by both halves (albedo"), by[m]
+    assert by["noisy"]["warning"] == ""
+    assert "WARNING guides shared" in r.stdout
+    assert "guides shared by both halves" in (tmp_path / "rep" / "estimate.html").read_text()
