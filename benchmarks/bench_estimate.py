@@ -518,7 +518,10 @@ def variant_estimates(fb, outs: dict, ref) -> dict[str, dict]:
     output (what ``--estimate-error`` wrote until the matched normaliser), ``matched`` its
     :func:`~mcdenoise.eval.estimate.matched_normaliser` (what it writes now), ``matched_r1``
     the same over 3×3, ``plus`` its one-sided form (energy only added back), ``max_box``
-    ``max(output, box5(input))``; ``shared`` the torch (lower) median of the denoisers'
+    ``max(output, box5(input))``, ``med3`` the pixelwise median of it and the two halves,
+    ``shrunkK`` it moved towards the input by ``d²/(d² + K·v)`` (``d``: their difference,
+    ``v``: the input's variance, 3×3 mean; issue 36: neither is kept);
+    ``shared`` the torch (lower) median of the denoisers'
     outputs (last session's), ``shared_med`` the proper median
     (:func:`~mcdenoise.eval.estimate.pseudo_reference`), ``shared_matched`` that matched
     (what ``mcdenoise eval`` without ``--ref`` uses for several outputs), ``shared_*`` as for

@@ -25,13 +25,13 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_kalantari import best_fixed  # noqa: E402
+from bench_kalantari import best_fixed
 
-from mcdenoise.denoise import denoise  # noqa: E402
-from mcdenoise.eval.metrics import relmse  # noqa: E402
-from mcdenoise.geomean import geometric_mean  # noqa: E402
-from mcdenoise.io import load_buffers  # noqa: E402
-from mcdenoise.train.patches import scan_dataset  # noqa: E402
+from mcdenoise.denoise import denoise
+from mcdenoise.eval.metrics import relmse
+from mcdenoise.geomean import geometric_mean
+from mcdenoise.io import load_buffers
+from mcdenoise.train.patches import scan_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 
