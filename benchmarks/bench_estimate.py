@@ -9,6 +9,15 @@ and how well the estimate matches the true error on held-out renders.
     Prints per scene the median seconds with and without halves and the ratio, and the ratio
     of the sums.
 
+``python benchmarks/bench_estimate.py file-size DIR [DIR ...]``
+    The size of every level of the render folders saved with every guide halved, with the
+    colour's halves only (renders before issue 36) and without halves (ZIP, float32).
+
+``python benchmarks/bench_estimate.py shared-guides [--trials 64] [--size 128] [--spp 4]``
+    Filters guided by an albedo as noisy as the colour (a texture finer than a pixel), the
+    guide shared by both halves or halved (:func:`shared_guides_study`): the bias of the
+    estimate in standard errors and the estimate over the truth.
+
 ``python benchmarks/bench_estimate.py synthetic [--trials 64] [--size 128] [--spp 8]``
     The estimator (:mod:`mcdenoise.eval.estimate`) on synthetic images whose truth is known:
     a smooth image with edges and fine texture, every pixel's two halves the means of
@@ -99,6 +108,36 @@ def render_cost(args: argparse.Namespace) -> int:
     print(
         f"{'all':18s} {totals[False]:8.3f} {totals[True]:8.3f} {totals[True] / totals[False]:6.3f}"
     )
+    return 0
+
+
+def file_size(args: argparse.Namespace) -> int:
+    """Bytes of every level of the render folders ``args.data`` saved (ZIP, float32) with
+    every guide halved, with colour halves only, and without halves."""
+    import tempfile
+
+    from mcdenoise.io import load_buffers, probe_exr, save_buffers
+
+    def halves(n: str) -> bool:
+        return n.endswith(("_a", "_b", "_a_var", "_b_var"))
+
+    layouts = {
+        "every guide halved": lambda n: True,
+        "colour halves only": lambda n: n.startswith("color") or not halves(n),
+        "no halves": lambda n: not halves(n),
+    }
+    for folder in args.data:
+        total = dict.fromkeys(layouts, 0)
+        for f in sorted(Path(folder).glob("*.exr")):
+            for part in (p.name for p in probe_exr(f)):
+                fb = load_buffers(f, part=part)
+                with tempfile.TemporaryDirectory() as tmp:
+                    for k, keep in layouts.items():
+                        path = Path(tmp) / "x.exr"
+                        save_buffers(path, fb.subset([n for n in fb.names() if keep(n)]))
+                        total[k] += path.stat().st_size
+        for k, v in total.items():
+            print(f"{folder}: {k:20s} {v / 1e6:8.2f} MB  {v / total['no halves']:.2f}x no halves")
     return 0
 
 
@@ -518,7 +557,9 @@ def variant_estimates(fb, outs: dict, ref) -> dict[str, dict]:
     output (what ``--estimate-error`` wrote until the matched normaliser), ``matched`` its
     :func:`~mcdenoise.eval.estimate.matched_normaliser` (what it writes now), ``matched_r1``
     the same over 3×3, ``plus`` its one-sided form (energy only added back), ``max_box``
-    ``max(output, box5(input))``, ``med3`` the pixelwise median of it and the two halves,
+    ``max(output, box5(input))``; ``residual_``: plus ``(D(x) − x)² − (hm − x)²`` per pixel
+    (``hm`` the mean of the filtered halves: a correction of the carry-over, exact only if
+    ``D(x) − hm`` were uncorrelated with the input's noise); ``med3`` the pixelwise median of it and the two halves,
     ``shrunkK`` it moved towards the input by ``d²/(d² + K·v)`` (``d``: their difference,
     ``v``: the input's variance, 3×3 mean; issue 36: neither is kept);
     ``shared`` the torch (lower) median of the denoisers'
@@ -576,9 +617,12 @@ def variant_estimates(fb, outs: dict, ref) -> dict[str, dict]:
         prod = (a - out_a) * (b - out_b)  # sq = ¼(D_A − D_B)² + this product (docs)
         cap = 9 * (va * vb).sqrt()
         sq_wins = sq - prod + torch.maximum(torch.minimum(prod, cap), -cap)
+        # the carry-over corrected by the residual energies against the input (issue 36)
+        sq_res = sq + (full - x).square() - ((out_a + out_b) / 2 - x).square()
         norms = {**normalisers(full, "own"), **shared, "oracle": ref}
         r = {}
-        for form, e in (("", sq), ("avg_", sq_avg), ("wins_", sq_wins)):
+        forms = (("", sq), ("avg_", sq_avg), ("wins_", sq_wins), ("residual_", sq_res))
+        for form, e in forms:
             for name, d in norms.items():
                 if form and name not in ("own_matched", "shared_med_matched", "oracle"):
                     continue
@@ -710,6 +754,12 @@ def heldout(args: argparse.Namespace) -> int:
     pairs += [("true_corrected", k) for k in sorted(have) if k.startswith("estimate_")
               and not k.endswith(("_se", "_upper")) and k != "estimate_halves_mean"]  # fmt: skip
     pairs += [("halves_mean_corrected", "estimate_halves_mean")]
+    # the ceiling (issue 36): estimates against the error of the mean of the filtered halves,
+    # which they are unbiased for, and that error itself against the full output's
+    pairs += [
+        ("halves_mean_corrected", k) for k in ("estimate_oracle", "estimate_shared_med_matched")
+    ]
+    pairs += [("true_corrected", "halves_mean_corrected")]
     for truth, est in pairs:
         if est in have and (not args.only or est in args.only.split(",")):
             _print_analysis(analyse(records, truth, est), brief=args.brief)
@@ -733,6 +783,8 @@ def main(argv: list[str] | None = None) -> int:
     sy.add_argument("--size", type=int, default=128)
     sy.add_argument("--spp", type=int, default=8)
     sy.add_argument("--block", type=int, default=16)
+    fs = sub.add_parser("file-size", help="file size with every guide halved, colour only, none")
+    fs.add_argument("data", nargs="+")
     sg = sub.add_parser("shared-guides", help="bias from guides shared by both halves")
     sg.add_argument("--trials", type=int, default=64)
     sg.add_argument("--size", type=int, default=128)
@@ -773,6 +825,7 @@ def main(argv: list[str] | None = None) -> int:
         "render-cost": render_cost,
         "synthetic": synthetic,
         "shared-guides": shared_guides,
+        "file-size": file_size,
         "heldout": heldout,
     }
     return cmds[args.cmd](args)
