@@ -17,6 +17,13 @@ quarter), the relMSE estimates (normalised by the output's matched normaliser, a
   levels to the full count, ``M(2L) = M(L)² / M(L/2)`` (each ``M`` the two-buffer estimate of
   one filtered input's error, ``½[(D_A − B)² + (D_B − A)²] − ½(A − B)²``);
 
+* ``loo``: leave one quarter out (4-fold cross-validation): the method on three quarters
+  judged by the fourth, ``(D(x₋ₖ) − qₖ)² − ½(qₖ − qⱼ)²`` (``j`` another quarter: an unbiased
+  estimate of ``Var qₖ`` without a variance buffer), averaged over ``k``: the error of one
+  filtered input of ``3L/2`` samples, nearer the full count than a half;
+* ``loo_extrap``: extrapolated from the half level and ``loo`` to the full count (the power
+  law through ``L`` and ``3L/2`` samples);
+
 against the true relMSE of the method's full output (the reference's noise removed), and
 prints per level the share within 1.5× and the mean Spearman ρ of the methods per image.
 
@@ -36,7 +43,7 @@ from pathlib import Path
 
 import torch
 
-ESTIMATES = ("est_p1", "est_p3", "extrap")
+ESTIMATES = ("est_p1", "est_p3", "extrap", "loo", "loo_extrap")
 PAIRINGS = (((0, 1), (2, 3)), ((0, 2), (1, 3)), ((0, 3), (1, 2)))
 
 
@@ -83,6 +90,7 @@ def records(run_a: Path, run_b: Path, methods: list[str]) -> list[dict]:
             full = combine(q)
             x = full["color"].double()
             halves = {pr: combine([q[i] for i in pr]) for pg in PAIRINGS for pr in pg}
+            three = [combine([q[i] for i in range(4) if i != k]) for k in range(4)]
             for m in methods:
                 try:
                     df = denoise(full, m, device="cpu").image.double()
@@ -90,6 +98,7 @@ def records(run_a: Path, run_b: Path, methods: list[str]) -> list[dict]:
                         pr: denoise(h, m, device="cpu").image.double() for pr, h in halves.items()
                     }
                     dq = [denoise(h, m, device="cpu").image.double() for h in q]
+                    d3 = [denoise(h, m, device="cpu").image.double() for h in three]
                 except McdenoiseError as err:
                     print(f"{img}/{2 * level}/{m}: skipped: {err}", file=sys.stderr)
                     continue
@@ -104,6 +113,19 @@ def records(run_a: Path, run_b: Path, methods: list[str]) -> list[dict]:
                     for i, j in itertools.combinations(range(4), 2)
                 ]
                 mh, mq = sum(half_level) / 3, sum(quarter_level) / 6
+                qc = [h["color"].double() for h in q]
+                loo = (
+                    sum(
+                        rel(
+                            (d3[k] - qc[k]).square() - 0.5 * (qc[k] - qc[(k + 1) % 4]).square(),
+                            norm,
+                        )
+                        for k in range(4)
+                    )
+                    / 4
+                )
+                # M(n) ∝ n^-α through (L, mh) and (3L/2, loo), taken to 2L
+                alpha = math.log(mh / loo) / math.log(1.5) if mh > 0 and loo > 0 else float("nan")
                 rec = {
                     "image": img,
                     "spp": 2 * level,
@@ -112,6 +134,8 @@ def records(run_a: Path, run_b: Path, methods: list[str]) -> list[dict]:
                     "est_p1": pair_est[0],
                     "est_p3": sum(pair_est) / 3,
                     "extrap": mh * mh / mq if mq > 0 and mh > 0 else float("nan"),
+                    "loo": loo,
+                    "loo_extrap": loo * (4 / 3) ** -alpha if math.isfinite(alpha) else float("nan"),
                 }
                 out.append(rec)
                 print(json.dumps(rec), file=sys.stderr)

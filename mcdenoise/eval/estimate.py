@@ -76,8 +76,8 @@ Relative MSE
     An image value below its own standard error is not reported as a value (a clamped ``0.0``
     would read as a perfect output): it is reported as an upper bound,
     ``relmse_estimated_upper`` = max(mean, 0) + 2 standard errors (one-sided, about 97.5 %
-    under a normal approximation), shown as ``< x``. The normaliser does not touch the squared-error
-    estimate, which stays unbiased; a normaliser that depends on the noise makes relMSE's
+    under a normal approximation), shown as ``< x``. The normaliser does not touch the
+    squared-error estimate, which stays unbiased; a normaliser that depends on the noise makes relMSE's
     ratio a little biased either way, as the output itself did.
 
 Guides shared by both halves
@@ -139,6 +139,7 @@ from mcdenoise.losses import RELMSE_EPS
 
 __all__ = [
     "BLOCK",
+    "SHARED_WARNING",
     "ErrorEstimate",
     "block_means",
     "cross_error",
@@ -150,8 +151,11 @@ __all__ = [
     "matched_normaliser",
     "pseudo_reference",
     "relative",
+    "shown_value",
+    "smoothed_guides",
     "split_halves",
     "squared_error",
+    "upper_bound",
     "write_estimate_report",
 ]
 
