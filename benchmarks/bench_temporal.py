@@ -21,6 +21,9 @@ The table gives geometric means over the sequences, then the issue's targets as 
 ``--time-size N`` adds svgf's time on the first sequence's frames tiled to N×N (median of the
 frames after its 4-frame warm-up) with OIDN on the same frame in the same run (median of 3).
 
+``--drop-motion-valid`` gives the methods the frames without the renderer's masks (as Blender
+Cycles files come): what their own disocclusion tests are worth.
+
 Example (the numbers of docs/results/temporal.md)::
 
     .venv/bin/python benchmarks/bench_temporal.py --data data/generated/seq-heldout --threads 1
@@ -135,6 +138,12 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--time-size", type=int, default=0)
     ap.add_argument("--per-sequence", action="store_true")
+    ap.add_argument(
+        "--drop-motion-valid",
+        action="store_true",
+        help="the methods get the frames without motion_valid / motion_next_valid (as Blender "
+        "Cycles writes them); ghosting is still scored on the renderer's mask",
+    )
     args = ap.parse_args()
     apply_threads(args.threads)
     seqs = _sequences(args.data)
@@ -159,7 +168,13 @@ def main() -> None:
             name, params = _parse(spec)
             if name == KT and args.temporal_model:
                 params.setdefault("model", args.temporal_model)
-            res = list(denoise_sequence(iter(frames), _method(name), params=params, device="cpu"))
+            inputs = frames
+            if args.drop_motion_valid:
+                keep = [
+                    n for n in frames[0].names() if n not in ("motion_valid", "motion_next_valid")
+                ]
+                inputs = [f.subset(keep) for f in frames]
+            res = list(denoise_sequence(iter(inputs), _method(name), params=params, device="cpu"))
             sc = _scores(frames, [r.image for r in res], refs)
             scores[spec].append(sc)
             seconds[spec].append(sum(r.seconds for r in res) / len(res))

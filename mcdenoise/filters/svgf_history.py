@@ -62,6 +62,26 @@ def _tap_tests(
     return ok
 
 
+def consistent_taps(
+    g: Guides, prev: Guides, motion: Tensor, s: SvgfSettings, taps=None
+) -> Tensor | None:
+    """``isReprjValid`` per bilinear tap of ``motion``: bool ``(B, 4, H, W)`` (in
+    :data:`~mcdenoise.filters.warp.TAP_OFFSETS` order), True where the previous frame's
+    surface at the tap (``prev``'s depth and normal) is frame ``t``'s surface (``g``'s);
+    ``None`` when neither frame has depth or normal. Used as the ``tap_valid`` of
+    :func:`~mcdenoise.filters.warp.warp` by SVGF and by the temporal kpcn's own
+    disocclusion test."""
+    if taps is None:
+        taps = bilinear_taps(motion, motion.dtype)
+    tests = []
+    for k in range(len(TAP_OFFSETS)):
+        t = _tap_tests(g, prev, lambda x, k=k: gather_flat(x, taps.index[:, k]), s)
+        if t is None:
+            return None
+        tests.append(t)
+    return torch.cat(tests, 1)
+
+
 def reproject(
     history: History,
     g: Guides,
@@ -79,11 +99,7 @@ def reproject(
     prev = history.guides
     packed = torch.cat([history.illumination, history.moments, history.length], 1)
     taps = bilinear_taps(motion, packed.dtype)
-    tests = []
-    for k in range(len(TAP_OFFSETS)):
-        t = _tap_tests(g, prev, lambda x, k=k: gather_flat(x, taps.index[:, k]), s)
-        tests.append(t)
-    tap_valid = None if tests[0] is None else torch.cat(tests, 1)  # type: ignore[arg-type]
+    tap_valid = consistent_taps(g, prev, motion, s, taps)
     # Falcor tests the screen bounds on the nearest previous pixel (``iposPrev``), for the
     # bilinear taps and the fallback alike: a pixel that comes from off the film has no history.
     trusted = _nearest_on_film(motion)

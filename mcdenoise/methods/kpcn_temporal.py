@@ -24,6 +24,7 @@ Exposure (``exposure=auto``): one factor for the whole sequence, from its first 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
@@ -57,9 +58,7 @@ def _scaled(frame: PreparedFrame, k: float) -> PreparedFrame:
     t["color"] = t["color"] * k
     if "color_var" in t:
         t["color_var"] = t["color_var"] * (k * k)
-    return PreparedFrame(
-        t, frame.motion, frame.motion_valid, frame.motion_next, frame.motion_next_valid
-    )
+    return dataclasses.replace(frame, tensors=t)
 
 
 @torch.no_grad()

@@ -13,7 +13,15 @@ model's inputs) plus the frame's motion buffers. :func:`warp_window` brings the 
 * a future frame ``t + d`` the same way along ``motion_next`` / ``motion_next_valid`` of
   frames ``t + d − 1 … t``;
 * a frame without the motion buffer it needs (a cut, or a file without motion) makes the
-  frames beyond it invalid everywhere (mask 0): the history is dropped.
+  frames beyond it invalid everywhere (mask 0): the history is dropped;
+* the method's own disocclusion test (issue 37): where both frames of a step have depth
+  and normal, a bilinear tap is read only when the surface there is the destination
+  pixel's surface, SVGF's ``isReprjValid`` (depth within 10 screen-space depth slopes plus
+  1 % of the depth, normal within 16 normal slopes;
+  :func:`mcdenoise.filters.svgf_history.consistent_taps`). A file with motion but no
+  ``motion_valid`` (Blender Cycles writes none) thus no longer blends disoccluded background
+  or a moving object's old place into frame ``t``; where ``motion_valid`` is present both
+  must pass.
 
 Every warped tensor is 0 where its mask is 0, never NaN (the warp never reads an invalid tap).
 Frames outside the sequence are left out (``fill=False``, inference) or given as zeros with a
@@ -28,6 +36,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from mcdenoise.filters.svgf_guides import Guides, SvgfSettings, make_guides
+from mcdenoise.filters.svgf_history import consistent_taps
 from mcdenoise.filters.warp import warp
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.prep.kpcn import DEFAULT_PREFILTER, prepare_tensors
@@ -38,14 +48,16 @@ MOTION_BUFFERS = ("motion", "motion_valid", "motion_next", "motion_next_valid")
 
 @dataclass
 class PreparedFrame:
-    """One frame: prepared tensors ``{name: (1, C, H, W)}`` and its motion (``(1, 2, H, W)``
-    vectors and ``(1, 1, H, W)`` masks, ``None`` when absent)."""
+    """One frame: prepared tensors ``{name: (1, C, H, W)}``, its motion (``(1, 2, H, W)``
+    vectors and ``(1, 1, H, W)`` masks, ``None`` when absent) and the raw depth and normal
+    of its disocclusion test (``guides``; ``None`` without depth and normal)."""
 
     tensors: dict[str, Tensor]
     motion: Tensor | None = None
     motion_valid: Tensor | None = None
     motion_next: Tensor | None = None
     motion_next_valid: Tensor | None = None
+    guides: Guides | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -64,9 +76,27 @@ def prepare_frame(
     prefilter: str = DEFAULT_PREFILTER,
     device: torch.device | str = "cpu",
 ) -> PreparedFrame:
-    """The kpcn inputs of ``buffers`` for ``source`` and its motion buffers (batch of 1)."""
+    """The kpcn inputs of ``buffers`` for ``source``, its motion buffers and the guides of
+    the disocclusion test (batch of 1)."""
     t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, source, prefilter).items()}
-    return PreparedFrame(t, *(_opt(buffers, n, device) for n in MOTION_BUFFERS))
+    return PreparedFrame(
+        t, *(_opt(buffers, n, device) for n in MOTION_BUFFERS), guides=frame_guides(buffers, device)
+    )
+
+
+#: The disocclusion test's tolerances: SVGF's (Falcor's ``isReprjValid``).
+DISOCCLUSION = SvgfSettings()
+
+
+def frame_guides(buffers: FeatureBuffers, device: torch.device | str = "cpu") -> Guides | None:
+    """Raw depth and normal of ``buffers`` as the :class:`~mcdenoise.filters.svgf_guides.
+    Guides` of the disocclusion test (non-finite values as 0: no hit), or ``None`` when
+    either is missing."""
+    depth, normal = _opt(buffers, "depth", device), _opt(buffers, "normal", device)
+    if depth is None or normal is None:
+        return None
+    depth, normal = torch.nan_to_num(depth[:, :1]), torch.nan_to_num(normal[:, :3])
+    return make_guides(depth, normal, normal)
 
 
 def _pack(t: Mapping[str, Tensor]) -> tuple[Tensor, list[tuple[str, int]]]:
@@ -97,7 +127,14 @@ def warp_to_centre(frames: Sequence[PreparedFrame], src: int, dst: int) -> tuple
         )
         if motion is None:
             return torch.zeros_like(x), torch.zeros_like(mask)
-        x, mask = warp(x, motion.to(x.dtype), valid=valid, source_valid=mask)
+        motion = motion.to(x.dtype)
+        here, there = g.guides, frames[j - step].guides
+        same = (
+            None
+            if here is None or there is None
+            else consistent_taps(here, there, motion, DISOCCLUSION)
+        )
+        x, mask = warp(x, motion, valid=valid, source_valid=mask, tap_valid=same)
     return x, mask
 
 
@@ -132,4 +169,12 @@ def warp_window(
     return out_t, out_m, centre
 
 
-__all__ = ["MOTION_BUFFERS", "PreparedFrame", "prepare_frame", "warp_to_centre", "warp_window"]
+__all__ = [
+    "DISOCCLUSION",
+    "MOTION_BUFFERS",
+    "PreparedFrame",
+    "frame_guides",
+    "prepare_frame",
+    "warp_to_centre",
+    "warp_window",
+]
