@@ -36,7 +36,7 @@ def _frame(occluder_x: int, motion_dx: int | None, seed: int) -> PreparedFrame:
 def test_disoccluded_pixels_get_no_weight_from_the_previous_frame() -> None:
     prev = _frame(8, None, 0)
     cur = _frame(12, -4, 1)  # the occluder moved 4 px right
-    (tens, masks, c) = warp_window([prev, cur], 1, [-1, 0])
+    tens, masks, _ = warp_window([prev, cur], 1, [-1, 0])
     mask = masks[0][0, 0]
     disoccluded = mask[6:18, 8:12]  # background now, the occluder's place in frame t-1
     assert float(disoccluded.max()) == 0.0
@@ -75,7 +75,7 @@ def test_a_translating_camera_keeps_its_history() -> None:
                 motion if t else None,
                 None,
                 guides=make_guides(depth, normal, colour),
-            )  # fmt: skip
+            )
         )
     _, masks, _ = warp_window(frames, 2, [-2, -1, 0])
     assert float(masks[1][0, 0, :, : W - 4].min()) == 1.0
