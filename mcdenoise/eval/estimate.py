@@ -128,6 +128,7 @@ from mcdenoise.filters.two_buffer import (
 )
 from mcdenoise.io.atomic import write_text_atomic
 from mcdenoise.io.buffers import (
+    VAR_SUFFIX,
     FeatureBuffers,
     check_halves,
     half_inputs,
@@ -370,8 +371,8 @@ def smoothed_guides(buffers: FeatureBuffers, names: Sequence[str]) -> FeatureBuf
     out.buffers = dict(buffers.buffers)
     for n in names:
         out.buffers[n] = box_mean(buffers[n][None].double(), GUIDE_CHECK_RADIUS)[0].to(buffers[n])
-        if n + "_var" in buffers.buffers:
-            out.buffers[n + "_var"] = buffers[n + "_var"] / 9
+        if n + VAR_SUFFIX in buffers.buffers:
+            out.buffers[n + VAR_SUFFIX] = buffers[n + VAR_SUFFIX] / 9
     return out
 
 

@@ -9,10 +9,6 @@ synthetic`` (loaded from there), at a smaller size.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
@@ -27,19 +23,6 @@ from mcdenoise.eval.estimate import (
     squared_error,
 )
 from mcdenoise.io import FeatureBuffers
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location(
-        "bench_estimate", ROOT / "benchmarks" / "bench_estimate.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["bench_estimate"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.mark.parametrize("noise", ["gaussian", "lognormal", "outliers"])

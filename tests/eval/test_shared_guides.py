@@ -4,10 +4,6 @@ estimate below its own noise is an upper bound, never a silent 0."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
@@ -21,19 +17,6 @@ from mcdenoise.eval.estimate import (
 )
 from mcdenoise.io import FeatureBuffers
 from mcdenoise.io.buffers import shared_guides
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location(
-        "bench_estimate", ROOT / "benchmarks" / "bench_estimate.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["bench_estimate"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_shared_noisy_guides_bias_the_estimate_and_halved_ones_do_not(bench) -> None:
