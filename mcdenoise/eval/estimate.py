@@ -470,7 +470,7 @@ def format_estimates(rows: Sequence[dict[str, Any]]) -> str:
         unc = f"{se:10.2g}" if se is not None else f"{'':>10s}"
         spp = str(r["spp"]) if r["spp"] is not None else "-"
         warn = f"WARNING {r['warning']}" if r.get("warning") else ""
-        note = "; ".join(x for x in (warn, r.get("normaliser") or "", r["note"]) if x)
+        note = printable("; ".join(x for x in (warn, r.get("normaliser") or "", r["note"]) if x))
         scene, method = printable(str(r["scene"])), printable(str(r["method"]))
         lines.append(f"{scene:28s} {spp:>5s} {method:18s} {val} {unc}  {note}")
     return "\n".join(lines)

@@ -94,9 +94,9 @@ def estimate_files(
             "scene": scene,
             "method": str(attrs.get("mcdenoise:method", "?")),
             "spp": attrs.get("mcdenoise:spp"),
-            "relmse_estimated": attrs.get("mcdenoise:relmse_estimated"),
-            "relmse_estimated_upper": attrs.get("mcdenoise:relmse_estimated_upper"),
-            "relmse_estimated_se": attrs.get("mcdenoise:relmse_estimated_se"),
+            "relmse_estimated": _number(attrs.get("mcdenoise:relmse_estimated")),
+            "relmse_estimated_upper": _number(attrs.get("mcdenoise:relmse_estimated_upper")),
+            "relmse_estimated_se": _number(attrs.get("mcdenoise:relmse_estimated_se")),
             "estimate_of": attrs.get("mcdenoise:estimate_of"),
             "normaliser": str(attrs.get("mcdenoise:estimate_normaliser", OWN_OLD))
             if _has_estimate(attrs)
@@ -195,10 +195,18 @@ def _renormalise(
         )
 
 
+def _number(value: Any) -> float | None:
+    """A header's number as a float; anything else (a file may come from anyone: a string,
+    a vector) as ``None``, i.e. no value."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value)
+
+
 def _has_estimate(attrs: dict[str, Any]) -> bool:
     """Whether an output's header holds an estimate (a value or an upper bound)."""
     return any(
-        attrs.get(f"mcdenoise:{k}") is not None
+        _number(attrs.get(f"mcdenoise:{k}")) is not None
         for k in ("relmse_estimated", "relmse_estimated_upper")
     )
 

@@ -153,3 +153,25 @@ def test_shared_noisy_guides_are_estimated_with_a_stated_warning(tmp_path: Path)
     assert by["noisy"]["warning"] == ""
     assert "WARNING guides shared" in r.stdout
     assert "guides shared by both halves" in (tmp_path / "rep" / "estimate.html").read_text()
+
+
+def test_odd_estimate_headers_are_data_not_errors(tmp_path: Path) -> None:
+    """An output whose header holds a string where a number belongs and an escape sequence in
+    its warning (a file may come from anyone): one row, the string read as no value, the
+    upper bound shown as ``< x``, the escape printed as text; exit 0."""
+    from mcdenoise.io import FeatureBuffers, save_buffers
+
+    attrs = {
+        "mcdenoise:method": "cross-bilateral",
+        "mcdenoise:relmse_estimated": "0.1; rm -rf /",
+        "mcdenoise:relmse_estimated_upper": 0.25,
+        "mcdenoise:relmse_estimated_se": "x",
+        "mcdenoise:estimate_warning": "guides shared \x1b[31mred",
+    }
+    out = tmp_path / "odd.exr"
+    save_buffers(out, FeatureBuffers({"color": torch.rand(3, 8, 8)}), attributes=attrs)
+    r = run("eval", str(out), "-o", str(tmp_path / "rep"))
+    assert r.exit_code == 0, r.output
+    assert "< 0.25" in r.stdout and "\x1b" not in r.stdout and "\\x1b[31mred" in r.stdout
+    row = json.loads((tmp_path / "rep" / "estimate.json").read_text())["rows"][0]
+    assert row["relmse_estimated"] is None and row["relmse_estimated_se"] is None
