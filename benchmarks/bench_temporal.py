@@ -1,5 +1,6 @@
-"""Issue 23's numbers on held-out sequences: kpcn-temporal against per-frame kpcn and OIDN,
-svgf against per-frame nlm, ghosting, and svgf's time per megapixel against OIDN's.
+"""Issues 23 and 37's numbers on held-out sequences: kpcn-temporal (offline window and causal
+recurrent mode) against per-frame kpcn and OIDN, svgf against per-frame nlm, ghosting, and
+the time per frame at a megapixel.
 
 Data (``--data DIR``): a folder of sequences of ``mcdenoise render --frames N``
 (``DIR/<id>/frame_XXXX.exr`` and ``DIR/<id>/ref/frame_XXXX.exr``), none of whose specs or
@@ -20,6 +21,13 @@ Per sequence and method (``mcdenoise.eval``'s definitions):
 The table gives geometric means over the sequences, then the issue's targets as ratios.
 ``--time-size N`` adds svgf's time on the first sequence's frames tiled to N×N (median of the
 frames after its 4-frame warm-up) with OIDN on the same frame in the same run (median of 3).
+``--time-kpcn N`` times kpcn-temporal (its default window), its causal mode and kpcn on 6
+frames tiled to N×N in the same run (median seconds per frame over frames 3–5, once every
+window is full).
+
+Methods are ``name[:param=value;...]``, e.g. ``kpcn-temporal:mode=causal`` (the shipped
+recurrent causal model) or ``kpcn-temporal:model=runs/x``. Every kpcn-temporal model named is
+checked: none may have been trained or validated on a held-out sequence.
 
 ``--drop-motion-valid`` gives the methods the frames without the renderer's masks (as Blender
 Cycles files come): what their own disocclusion tests are worth.
@@ -51,8 +59,9 @@ from mcdenoise.models.weights import shipped_model_path
 from mcdenoise.registry import get_method
 from mcdenoise.threads import apply_threads
 
-DEFAULT_METHODS = "kpcn-temporal,kpcn-temporal:window=3,kpcn,oidn,svgf,nlm"
+DEFAULT_METHODS = "kpcn-temporal,kpcn-temporal:mode=causal,kpcn,oidn,svgf,nlm"
 KT = "kpcn-temporal"
+CAUSAL = "kpcn-temporal:mode=causal"
 
 
 def _method(name: str) -> Method:
@@ -129,6 +138,28 @@ def timing(seq: Path, part: str, size: int) -> None:
     )
 
 
+def timing_kpcn(seq: Path, part: str, size: int, temporal_model: str) -> None:
+    frames, _ = _load(seq, part)
+    big = [frames[i % len(frames)].tiled(size, size) for i in range(6)]
+    load = os.getloadavg()[0]
+    res = {}
+    for spec in (KT, CAUSAL, "kpcn"):
+        name, params = _parse(spec)
+        if name == KT and temporal_model and "mode" not in params:
+            params["model"] = temporal_model
+        secs = [r.seconds for r in denoise_sequence(iter(big), _method(name), params=params)]
+        res[spec] = statistics.median(secs[3:])
+    mp = size * size / 1e6
+    print(f"\nseconds per frame, {size}x{size} ({mp:.2f} MP), load average {load:.1f}:")
+    for spec, sec in res.items():
+        print(f"  {spec:28s} {sec:7.2f} s  ({sec / res['kpcn']:.2f}x kpcn)")
+
+
+def _trained_on(model: str) -> set[str]:
+    training = read_card(model).get("training", {})
+    return set(training.get("train_sequences", [])) | set(training.get("val_sequences", []))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, required=True)
@@ -137,6 +168,7 @@ def main() -> None:
     ap.add_argument("--temporal-model", default="", help="kpcn-temporal model (default: shipped)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--time-size", type=int, default=0)
+    ap.add_argument("--time-kpcn", type=int, default=0, metavar="N")
     ap.add_argument("--per-sequence", action="store_true")
     ap.add_argument(
         "--drop-motion-valid",
@@ -147,13 +179,19 @@ def main() -> None:
     args = ap.parse_args()
     apply_threads(args.threads)
     seqs = _sequences(args.data)
-    model = args.temporal_model or str(shipped_model_path(KT))
-    trained = set(read_card(model).get("training", {}).get("train_sequences", []))
-    trained |= set(read_card(model).get("training", {}).get("val_sequences", []))
-    shared = sorted(trained & {s.name for s in seqs})
-    if shared:
-        sys.exit(f"held-out sequences the model was trained on: {', '.join(shared)}")
     specs = [s.strip() for s in args.methods.split(",") if s.strip()]
+    models = {args.temporal_model or str(shipped_model_path(KT))}
+    for spec in specs:
+        name, params = _parse(spec)
+        if name == KT and "model" in params:
+            models.add(params["model"])
+        elif name == KT and params.get("mode") == "causal":
+            causal = shipped_model_path(KT, "causal")
+            models.add(str(causal if causal.is_file() else shipped_model_path(KT)))
+    for model in sorted(models):
+        shared = sorted(_trained_on(model) & {s.name for s in seqs})
+        if shared:
+            sys.exit(f"{model}: trained on held-out sequences {', '.join(shared)}")
     scores: dict[str, list[dict[str, float]]] = {s: [] for s in specs}
     seconds: dict[str, list[float]] = {s: [] for s in specs}
     t0 = time.time()
@@ -166,7 +204,7 @@ def main() -> None:
         used.append(seq)
         for spec in specs:
             name, params = _parse(spec)
-            if name == KT and args.temporal_model:
+            if name == KT and args.temporal_model and "mode" not in params:
                 params.setdefault("model", args.temporal_model)
             inputs = frames
             if args.drop_motion_valid:
@@ -207,15 +245,30 @@ def main() -> None:
                 f"{'met' if ok else 'NOT met'}"
             )
 
-    print("\nissue 23 targets:")
-    ratio(KT, "kpcn", "trel", 0.5)
-    ratio(KT, "oidn", "trel", 0.5)
-    ratio(KT, "kpcn", "rel", 0.8)
-    ratio(KT, "oidn", "rel", 1.0)
+    print("\nissue 37 targets:")
+    ratio(KT, "kpcn", "trel", 0.6)
+    ratio(KT, "oidn", "trel", 0.6)
+    ratio(KT, "kpcn", "rel", 0.9)
+    ratio(CAUSAL, "kpcn", "trel", 0.75)
+    ratio(CAUSAL, "kpcn", "rel", 1.0)
     ratio("svgf", "nlm", "trel", 1.0, below=False)
     ratio(KT, "kpcn", "ghost", 1.2)
+    for spec in (KT, CAUSAL):
+        if spec in scores and "kpcn" in scores:
+            worse = [
+                f"{seq.name} ({key})"
+                for seq, a, b in zip(used, scores[spec], scores["kpcn"])
+                for key in ("rel", "trel")
+                if a[key] > b[key]
+            ]
+            print(
+                f"  {spec}: sequences worse than kpcn (target: none): "
+                f"{len(worse)}{': ' + ', '.join(worse) if worse else ''}"
+            )
     if args.time_size:
         timing(used[0], args.part, args.time_size)
+    if args.time_kpcn:
+        timing_kpcn(used[0], args.part, args.time_kpcn, args.temporal_model)
 
 
 if __name__ == "__main__":

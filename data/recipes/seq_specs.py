@@ -11,7 +11,11 @@ index):
   static (15 %), or the default-like slow orbit of ±2…4° (15 %);
 * 1–2 moving objects (non-emissive, not the room's large rectangles when others exist),
   translated over the sequence by 0.4…1.5× their size in a random horizontal direction
-  (sometimes with a small vertical part).
+  (sometimes with a small vertical part);
+* with ``--moving-lights P``: with probability ``P`` one emissive object (an area light) moves
+  too, by 0.3…1.0× its size (lighting that changes over the sequence). These draws use their
+  own RNG, so the camera paths and moving objects of a seed are the same with or without it
+  (the held-out specs of seed 9000 did not change when the option was added).
 
 Usage (the recipes in temporal_training.md)::
 
@@ -71,6 +75,23 @@ def animate(spec: SceneSpec, rng: random.Random) -> SceneSpec:
     return dataclasses.replace(spec, animation=anim, objects=tuple(objs))
 
 
+def move_light(spec: SceneSpec, rng: random.Random, p: float) -> SceneSpec:
+    """``spec`` with, at probability ``p``, one of its emissive objects translated over the
+    sequence by 0.3…1.0× its size (horizontal, random direction)."""
+    lights = [i for i, o in enumerate(spec.objects) if o.emission is not None]
+    if not lights or rng.random() >= p:
+        return spec
+    objs = list(spec.objects)
+    i = rng.choice(lights)
+    size = min(_size(objs[i]), 2.0)
+    a = rng.uniform(0.0, 2.0 * math.pi)
+    d = rng.uniform(0.3, 1.0) * size
+    objs[i] = dataclasses.replace(
+        objs[i], motion=(round(d * math.cos(a), 4), 0.0, round(d * math.sin(a), 4))
+    )
+    return dataclasses.replace(spec, objects=tuple(objs))
+
+
 #: Hand-written motion for curated scenes (held-out sequences): the three of
 #: data/experiments/temporal.toml plus three more, each with a camera path and a moving object
 #: (object index -> world translation over the sequence).
@@ -105,6 +126,13 @@ def main() -> None:
     ap.add_argument(
         "--curated", type=Path, help="also write the CURATED scenes of this folder (data/scenes)"
     )
+    ap.add_argument(
+        "--moving-lights",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="probability that one emissive object of a scene moves (default 0)",
+    )
     ap.add_argument("-o", "--out", type=Path, required=True)
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -112,7 +140,10 @@ def main() -> None:
         curated(args.curated, args.out)
     for k, spec in enumerate(random_specs(args.count, args.seed)):
         rng = random.Random(args.seed * 100003 + k)
-        d = animate(spec, rng).to_dict()
+        spec = animate(spec, rng)
+        if args.moving_lights > 0:
+            spec = move_light(spec, random.Random(f"light/{args.seed}/{k}"), args.moving_lights)
+        d = spec.to_dict()
         d.pop("source", None)
         (args.out / f"{spec.name}.json").write_text(json.dumps(d, indent=1), encoding="utf-8")
     if args.count:

@@ -11,6 +11,11 @@ been read; ``mode=causal`` uses past frames only (interactive use: each frame is
 soon as it is read). ``window`` (default: the model's) may be changed at inference; the
 shipped model was trained with 5 (offline).
 
+A recurrent model (card ``recurrent``, e.g. the shipped ``kpcn-temporal-causal``) also reads
+its own previous output, warped to frame ``t`` with the same disocclusion test
+(:func:`~mcdenoise.prep.kpcn_temporal.warp_image`); a cut (no motion) or a disoccluded pixel
+starts it afresh there.
+
 Frames without motion are cuts: the frames beyond them in the window are dropped (mask 0),
 so a still image or a one-frame sequence gives the single-frame kpcn's result (bit for bit:
 :meth:`~mcdenoise.models.kpcn_temporal.TemporalKpcn.denoise_window`). ``motion_valid`` = 0 keeps a
@@ -46,7 +51,13 @@ from mcdenoise.prep.kpcn import (
     exposure_scale,
     source_for,
 )
-from mcdenoise.prep.kpcn_temporal import MOTION_BUFFERS, PreparedFrame, prepare_frame, warp_window
+from mcdenoise.prep.kpcn_temporal import (
+    MOTION_BUFFERS,
+    PreparedFrame,
+    prepare_frame,
+    warp_image,
+    warp_window,
+)
 
 NAME = "kpcn-temporal"
 
@@ -83,17 +94,28 @@ def denoise_kpcn_temporal_sequence(
         prefilter, exposure: as :func:`mcdenoise.methods.kpcn.denoise_kpcn`.
     """
     offsets = window_offsets(window or model.card.window, mode or model.card.mode)
-    past, future = -min(offsets), max(offsets)
+    recurrent = model.recurrence is not None
+    # a recurrent model warps its previous output along frame t's motion: keep frame t - 1
+    past, future = max(-min(offsets), int(recurrent)), max(offsets)
     kept: dict[int, PreparedFrame] = {}
     size: tuple[int, int] | None = None
     src = source
     k = 1.0
+    last: list[Tensor] = []  # a recurrent model's previous output (exposure-scaled)
 
     def output(t: int) -> Tensor:
         lo, hi = max(0, t - past), min(max(kept) + 1, t + future + 1)
         seq = [kept[j] for j in range(lo, hi)]
-        tens, masks, centre = warp_window(seq, t - lo, [o for o in offsets])
-        out = model.denoise_window(tens, masks, centre, str(src), tile=tile)[0]
+        win = [o for o in offsets if lo <= t + o < hi]
+        tens, masks, centre = warp_window(seq, t - lo, win)
+        prev = prev_mask = None
+        if recurrent and last and t > lo:
+            prev, prev_mask = warp_image(seq, last[0], t - 1 - lo, t - lo)
+        out = model.denoise_window(
+            tens, masks, centre, str(src), tile=tile, previous=prev, previous_mask=prev_mask
+        )
+        last[:] = [out] if recurrent else []
+        out = out[0]
         return out / k if k != 1.0 else out
 
     n = 0
@@ -118,9 +140,14 @@ def denoise_kpcn_temporal_sequence(
         kept.pop(t - past, None)
 
 
+#: The shipped variant ``-p mode=causal`` loads (a recurrent causal model), when installed.
+CAUSAL = "causal"
+
+
 def _model(params: Mapping[str, Any]) -> TemporalKpcn:
     missing = f"{NAME}: no shipped weights in this install; pass -p model=RUN"
-    return load_kpcn_temporal(model_path(NAME, params, missing))
+    variant = CAUSAL if str(params.get("mode", "")) == "causal" else None
+    return load_kpcn_temporal(model_path(NAME, params, missing, variant))
 
 
 def _check(b: FeatureBuffers, params: Mapping[str, Any]) -> str | None:
@@ -154,7 +181,8 @@ def _run_sequence(
 METHOD = Method(
     name=NAME,
     summary="temporal kernel-predicting CNN over a window of motion-warped frames (Vogels "
-    "2018); -p window=3|5, -p mode=offline|causal, -p model=RUN",
+    "2018); -p mode=causal: past frames and its own previous output only (recurrent), "
+    "-p window=N, -p model=RUN",
     requires=("color", "albedo", "normal"),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS, *MOTION_BUFFERS),
     defaults={

@@ -83,6 +83,15 @@ MAX_WINDOW = 15
 #: a neighbour frame, blurred by the warp, is no longer recognised as one by that frame's own
 #: kernel); starting near the single-frame model, training adds the neighbours where they help.
 CENTRE_BIAS = 2.0
+#: Extra per-frame input channels of the temporal module by card ``inputs`` version.
+MIXER_INPUTS = {1: 0, 2: 2}
+#: Kernel edge of the recurrent source (the previous output, warped to frame t).
+RECURRENT_KERNEL = 3
+#: Initial logit of the recurrent blend weight β: sigmoid(−3) = 4.7 % of the previous output
+#: where it is valid, before training.
+RECURRENT_BIAS = -3.0
+#: Initial logit bias of the recurrent kernel's centre tap (its other taps start at 0).
+RECURRENT_CENTRE = 2.0
 
 
 def window_offsets(window: int, mode: str) -> list[int]:
@@ -110,6 +119,12 @@ class TemporalCard(Card):
         window: frames per window (3, 5 …).
         mode: ``offline`` or ``causal`` (:data:`MODES`).
         hidden: width of the temporal module per kernel scale.
+        inputs: what the temporal module sees per frame (:data:`MIXER_INPUTS`): 1, the
+            trunk's features and the mask (the first shipped model); 2, also the
+            noise-normalised difference to frame t and the log ratio of the frames' variances
+            (:func:`noise_inputs`), so it can reject disoccluded pixels and fireflies.
+        recurrent: the previous *output*, warped to frame t, is one more kernel source
+            (:class:`RecurrentBlend`; run frame by frame, :mod:`mcdenoise.methods.kpcn_temporal`).
         training: free-form description of the training run.
     """
 
@@ -117,6 +132,8 @@ class TemporalCard(Card):
     window: int = 5
     mode: str = "offline"
     hidden: list[int] = field(default_factory=lambda: [16, 24, 32])
+    inputs: int = 1
+    recurrent: bool = False
     training: dict[str, Any] = field(default_factory=dict)
     format: str = FORMAT
 
@@ -145,6 +162,8 @@ class TemporalCard(Card):
             window=f.integer("window", 1, MAX_WINDOW),
             mode=f.text("mode", MODES),
             hidden=f.integers("hidden", 1, MAX_WIDTH),
+            inputs=f.integer("inputs", 1, max(MIXER_INPUTS), default=1),
+            recurrent=f.flag("recurrent", default=False),
             training=f.mapping("training", default={}),
         )
         card.check(what)
@@ -231,15 +250,104 @@ def min_pool(mask: Tensor) -> Tensor:
     return -F.max_pool2d(-mask, 2)
 
 
+def box3(x: Tensor) -> Tensor:
+    """3×3 box mean (replicate padding)."""
+    return F.avg_pool2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
+
+
+def noise_inputs(
+    images: Sequence[Tensor], variances: Sequence[Tensor], masks: Sequence[Tensor], centre: int
+) -> list[Tensor]:
+    """Per frame ``(B, 2, h, w)``: how far its warped irradiance is from frame t's, in units
+    of their noise, and how much noisier it is (the temporal module's extra inputs, card
+    ``inputs`` 2).
+
+    Channel 0: ``log1p(mean_c (box3(x_i) − box3(x_t))² / ((v_i + v_t) / 9 + ε))``, where
+    ``box3`` is the 3×3 mean and ``v`` the per-pixel variance of the mean (its 3×3 mean, i.e.
+    the variance of ``box3(x)`` under independent pixels); ε = 1e-4 (x_t² + 1e-2) keeps it
+    finite and scale-free. Near 0 where the two frames agree within their noise; large at a
+    disocclusion, a moving shadow or a neighbour's firefly.
+    Channel 1: ``log((v̄_i + ε) / (v̄_t + ε))`` (channel means, clamped to ±10).
+    Frame t's own channels are 0; invalid pixels (mask 0) are 0 too.
+    """
+    xc = box3(images[centre])
+    vc = box3(variances[centre].clamp_min(0.0))
+    out = []
+    for i, (x, v, m) in enumerate(zip(images, variances, masks)):
+        if i == centre:
+            out.append(torch.zeros_like(xc[:, :2]))
+            continue
+        vi = box3(v.clamp_min(0.0))
+        eps = 1e-4 * (xc.square() + 1e-2)
+        z = ((box3(x) - xc).square() / ((vi + vc) / 9.0 + eps)).mean(1, keepdim=True)
+        r = torch.log((vi.mean(1, keepdim=True) + 1e-6) / (vc.mean(1, keepdim=True) + 1e-6))
+        feats = torch.cat([torch.log1p(z), r.clamp(-10.0, 10.0)], dim=1)
+        out.append(torch.nan_to_num(feats) * (m > 0.5).to(feats.dtype))
+    return out
+
+
+# --- the recurrent source ------------------------------------------------------------------------
+class RecurrentBlend(nn.Module):
+    """The previous output as a kernel source (card ``recurrent``; the practical real-time
+    denoisers' recurrence, e.g. Chaitanya et al. 2017, Schied et al. 2017's history).
+
+    ``x = (1 − β) · r + β · K ⊛ p``: ``r`` is this frame's kernel result (irradiance), ``p``
+    the previous output warped to frame t and demodulated by frame t's albedo factor, ``K`` a
+    :data:`RECURRENT_KERNEL`² kernel over ``p``'s valid taps and ``β = sigmoid(·) · mask``.
+    Both come from a small network over ``[f_t (finest trunk features), log1p r, log1p p,
+    |r − p| / (r + p + 0.02), mask]``. Its last layer starts at zero: ``β`` starts at
+    sigmoid(:data:`RECURRENT_BIAS`), ``K`` centred (:data:`RECURRENT_CENTRE`). Where the
+    previous output is invalid (a disocclusion, the first frame) ``β = 0`` and ``x = r``.
+    """
+
+    def __init__(self, channels: int, hidden: int = 16) -> None:
+        super().__init__()
+        k = RECURRENT_KERNEL
+        self.net = nn.Sequential(
+            nn.Conv2d(channels + 8, hidden, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(hidden, hidden, 3, padding=1),
+            nn.ReLU(inplace=True),
+        )
+        self.out = nn.Conv2d(hidden, k * k + 1, 1)
+        nn.init.zeros_(self.out.weight)
+        with torch.no_grad():
+            self.out.bias.zero_()
+            self.out.bias[k * k // 2] = RECURRENT_CENTRE
+            self.out.bias[k * k] = RECURRENT_BIAS
+
+    def forward(self, feats: Tensor, res: Tensor, prev: Tensor, mask: Tensor) -> Tensor:
+        k = RECURRENT_KERNEL
+        valid = (mask > 0.5).to(res.dtype)
+        prev = prev * valid
+        diff = ((res - prev).abs() / (res.abs() + prev.abs() + 0.02)).mean(1, keepdim=True)
+        x = torch.cat(
+            [
+                feats.to(res.dtype),
+                torch.log1p(res.clamp_min(0.0)),
+                torch.log1p(prev.clamp_min(0.0)),
+                diff * valid,
+                valid,
+            ],
+            dim=1,
+        )
+        y = self.out(self.net(x))
+        wts = joint_kernel_softmax([y[:, : k * k]], [tap_valid(valid, k)])
+        beta = torch.sigmoid(y[:, k * k :]) * valid
+        return (1.0 - beta) * res + beta * apply_joint([prev], wts)
+
+
 # --- the temporal module -----------------------------------------------------------------------
 class TemporalMixer(nn.Module):
     """Per-scale temporal module: per-frame logit corrections ``Δ_i`` and a context (see the
     module docstring). ``out`` and ``alpha`` start at zero."""
 
-    def __init__(self, channels: int, hidden: int, kernel: int) -> None:
+    def __init__(self, channels: int, hidden: int, kernel: int, extra: int = 0) -> None:
         super().__init__()
+        #: channels of per-frame extra inputs (:func:`noise_inputs`)
+        self.extra = extra
         self.frame = nn.Sequential(
-            nn.Conv2d(2 * channels + 2, hidden, 3, padding=1),
+            nn.Conv2d(2 * channels + 2 + extra, hidden, 3, padding=1),
             nn.ReLU(inplace=True),
             nn.Conv2d(hidden, hidden, 3, padding=1),
             nn.ReLU(inplace=True),
@@ -253,11 +361,17 @@ class TemporalMixer(nn.Module):
         self.centre_bias = nn.Parameter(torch.tensor(CENTRE_BIAS))
 
     def forward(
-        self, feats: Sequence[Tensor], masks: Sequence[Tensor], centre: int
+        self,
+        feats: Sequence[Tensor],
+        masks: Sequence[Tensor],
+        centre: int,
+        extra: Sequence[Tensor] | None = None,
     ) -> tuple[list[Tensor], Tensor]:
-        """``(Δ logits per frame, compositor logit correction (B, 1, h, w))``."""
+        """``(Δ logits per frame, compositor logit correction (B, 1, h, w))``; ``extra``: per
+        frame the :func:`noise_inputs` (when the module was built for them)."""
         fc = feats[centre]
         n, b = len(feats), fc.shape[0]
+        more = list(extra) if self.extra else [fc[:, :0]] * n
         x = torch.cat(
             [
                 torch.cat(
@@ -266,10 +380,11 @@ class TemporalMixer(nn.Module):
                         f - fc,
                         m.to(f.dtype),
                         torch.full_like(m, float(i == centre), dtype=f.dtype),
+                        e.to(f.dtype),
                     ],
                     dim=1,
                 )
-                for i, (f, m) in enumerate(zip(feats, masks))
+                for i, (f, m, e) in enumerate(zip(feats, masks, more))
             ],
             dim=0,
         )
@@ -294,9 +409,11 @@ class TemporalKpcn(CardModule):
         self.card = card
         self.base = KpcnModel(base_card)
         ch, k = base_card.channels, base_card.kernel
+        extra = MIXER_INPUTS[card.inputs]
         self.mixers = nn.ModuleList(
-            TemporalMixer(ch[s], card.hidden[s], k) for s in range(base_card.scales)
+            TemporalMixer(ch[s], card.hidden[s], k, extra) for s in range(base_card.scales)
         )
+        self.recurrence = RecurrentBlend(ch[0]) if card.recurrent else None
 
     @property
     def centre(self) -> int:
@@ -318,7 +435,8 @@ class TemporalKpcn(CardModule):
         return list(self.base.parameters())
 
     def temporal_parameters(self) -> list[nn.Parameter]:
-        return list(self.mixers.parameters())
+        rec = list(self.recurrence.parameters()) if self.recurrence is not None else []
+        return list(self.mixers.parameters()) + rec
 
     # --- network -------------------------------------------------------------------------
     def run(
@@ -330,6 +448,8 @@ class TemporalKpcn(CardModule):
         *,
         trunk_grad: bool = True,
         features: Sequence[Sequence[Tensor]] | None = None,
+        previous: Tensor | None = None,
+        previous_mask: Tensor | None = None,
     ) -> Tensor:
         """Denoise frame ``centre`` of a window of prepared tensors ``(B, C, H, W)``.
 
@@ -346,8 +466,13 @@ class TemporalKpcn(CardModule):
             features: the trunk's features per frame and scale (``[frame][scale]``, full
                 resolution first), when the caller has them (a frozen trunk's, computed once
                 per training window); ``None``: computed here.
+            previous, previous_mask: a recurrent model's previous output ``(B, 3, H, W)``
+                (linear, remodulated, the same exposure scale) warped to frame t, and where
+                that warp is valid ``(B, 1, H, W)``; ``None`` (the first frame, a cut): no
+                recurrence.
         """
-        if len(frames) == 1:
+        recur = self.recurrence is not None and previous is not None
+        if len(frames) == 1 and not recur:
             return self.base.run(frames[0], source)
         base = self.base
         n, k, scales = len(frames), base.card.kernel, base.card.scales
@@ -373,17 +498,27 @@ class TemporalKpcn(CardModule):
             feats = [list(f.split(b, dim=0)) for f in feats_all[:scales]]  # [scale][frame]
         else:
             feats = [[features[i][s] for i in range(n)] for s in range(scales)]
-        irr = demodulate(stacked["color"], stacked.get("albedo"))[0]
+        irr, fac = demodulate(stacked["color"], stacked.get("albedo"))
         irr = irr.float() if irr.dtype != torch.float64 else irr
         images = [list(irr.split(b, dim=0))]
         ones = torch.ones_like(masks[centre][:, :1], dtype=irr.dtype)
         mk = [[ones if i == centre else (masks[i] > 0.5).to(irr.dtype) for i in range(n)]]
+        noisy = self.card.inputs >= 2
+        if noisy:
+            if "color_var" in stacked:
+                var = stacked["color_var"].to(irr.dtype) / fac.to(irr.dtype).square()
+            else:  # no variance buffer: the local spatial variance stands in
+                var = (box3(irr.square()) - box3(irr).square()).clamp_min(0.0)
+            variances = [list(var.split(b, dim=0))]
         for _ in range(1, scales):
             images.append([downsample(x) for x in images[-1]])
             mk.append([min_pool(m) for m in mk[-1]])
+            if noisy:
+                variances.append([downsample(v) / 4.0 for v in variances[-1]])
         res: Tensor | None = None
         for s in range(scales - 1, -1, -1):
-            deltas, dalpha = self.mixers[s](feats[s], mk[s], centre)
+            extra = noise_inputs(images[s], variances[s], mk[s], centre) if noisy else None
+            deltas, dalpha = self.mixers[s](feats[s], mk[s], centre, extra)
             valid = [tap_valid(m, k) for m in mk[s]]
             in_image = tap_valid(mk[s][centre], k)
             logits = [
@@ -399,13 +534,21 @@ class TemporalKpcn(CardModule):
         assert res is not None
         if base.card.albedo_kernels and "albedo" in c:
             factor = apply_head(factor, feats[0][centre], base.albedo_head, k)
-        return (res * factor.to(res.dtype)).clamp_min(0.0)
+        factor = factor.to(res.dtype)
+        if recur:
+            assert self.recurrence is not None and previous is not None
+            pmask = torch.ones_like(ones) if previous_mask is None else previous_mask
+            prev = torch.nan_to_num(previous.to(res.dtype), nan=0.0, posinf=0.0, neginf=0.0)
+            prev = prev / factor.clamp_min(1e-3)
+            res = self.recurrence(feats[0][centre], res, prev, pmask.to(res.dtype))
+        return (res * factor).clamp_min(0.0)
 
     def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
         """Training path: ``batch`` holds ``{name}@{i}`` and ``mask@{i}`` for every frame ``i``
         of the window (:attr:`card.offsets` order), optionally the trunk's features
-        ``feat{s}@{i}`` per scale ``s``, and one ``source`` index ``source`` for the whole
-        batch (``(B,)``, all equal)."""
+        ``feat{s}@{i}`` per scale ``s`` and (recurrent models) ``previous`` /
+        ``previous_mask``, and one ``source`` index ``source`` for the whole batch (``(B,)``,
+        all equal)."""
         n = len(self.card.offsets)
         frames = [
             {
@@ -422,7 +565,14 @@ class TemporalKpcn(CardModule):
             scales = self.base.card.scales
             features = [[batch[f"feat{s}@{i}"] for s in range(scales)] for i in range(n)]
         return self.run(
-            frames, masks, self.centre, source, trunk_grad=self.training_trunk, features=features
+            frames,
+            masks,
+            self.centre,
+            source,
+            trunk_grad=self.training_trunk,
+            features=features,
+            previous=batch.get("previous"),
+            previous_mask=batch.get("previous_mask"),
         )
 
     #: Whether :meth:`forward` lets gradients reach the trunk (set by the trainer).
@@ -438,10 +588,14 @@ class TemporalKpcn(CardModule):
         source: str,
         *,
         tile: int = TILE,
+        previous: Tensor | None = None,
+        previous_mask: Tensor | None = None,
     ) -> Tensor:
         """Tiled :meth:`run` on a window of prepared tensors ``(1, C, H, W)`` of any size; a
-        window of one frame is :meth:`KpcnModel.denoise_tensors` (bit for bit)."""
-        if len(frames) == 1:
+        window of one frame without a previous output is :meth:`KpcnModel.denoise_tensors`
+        (bit for bit)."""
+        recur = self.recurrence is not None and previous is not None
+        if len(frames) == 1 and not recur:
             return self.base.denoise_tensors(frames[0], source, tile=max(tile, 64))
         h, w = frames[centre]["color"].shape[-2:]
         m, halo = self.multiple, self.halo
@@ -454,6 +608,9 @@ class TemporalKpcn(CardModule):
                 c, d = max(0, x0 - halo), min(w, x1 + halo)
                 fr = [{k: v[..., a:b, c:d] for k, v in f.items()} for f in frames]
                 mk = [mm[..., a:b, c:d] for mm in masks]
+                pv = [
+                    x[..., a:b, c:d] for x in (previous, previous_mask) if recur and x is not None
+                ]
                 ph, pw = -(b - a) % m, -(d - c) % m
                 if ph or pw:
                     fr = [
@@ -461,20 +618,41 @@ class TemporalKpcn(CardModule):
                         for f in fr
                     ]
                     mk = [F.pad(mm, (0, pw, 0, ph), mode="replicate") for mm in mk]
-                res = self.run(fr, mk, centre, source)[..., : b - a, : d - c]
+                    pv = [F.pad(x, (0, pw, 0, ph), mode="replicate") for x in pv]
+                res = self.run(
+                    fr,
+                    mk,
+                    centre,
+                    source,
+                    previous=pv[0] if pv else None,
+                    previous_mask=pv[1] if len(pv) > 1 else None,
+                )[..., : b - a, : d - c]
                 out[..., y0:y1, x0:x1] = res[..., y0 - a : y1 - a, x0 - c : x1 - c]
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
 
 
 def from_single_frame(
-    base: KpcnModel, *, window: int = 5, mode: str = "offline", hidden: Sequence[int] | None = None
+    base: KpcnModel,
+    *,
+    window: int = 5,
+    mode: str = "offline",
+    hidden: Sequence[int] | None = None,
+    inputs: int = 1,
+    recurrent: bool = False,
 ) -> TemporalKpcn:
     """A temporal model around the weights of a trained single-frame ``base`` (the temporal
     module at its zero start)."""
     hid = list(hidden) if hidden is not None else [16, 24, 32][: base.card.scales]
     while len(hid) < base.card.scales:
         hid.append(hid[-1])
-    card = TemporalCard(base=base.card.to_dict(), window=window, mode=mode, hidden=hid)
+    card = TemporalCard(
+        base=base.card.to_dict(),
+        window=window,
+        mode=mode,
+        hidden=hid,
+        inputs=inputs,
+        recurrent=recurrent,
+    )
     model = TemporalKpcn(card)
     model.base.load_state_dict(base.state_dict())
     return model
@@ -483,8 +661,10 @@ def from_single_frame(
 __all__ = [
     "FORMAT",
     "MAX_WINDOW",
+    "MIXER_INPUTS",
     "MODES",
     "TILE",
+    "RecurrentBlend",
     "TemporalCard",
     "TemporalKpcn",
     "TemporalMixer",
@@ -493,6 +673,7 @@ __all__ = [
     "from_single_frame",
     "joint_kernel_softmax",
     "min_pool",
+    "noise_inputs",
     "tap_valid",
     "window_offsets",
 ]

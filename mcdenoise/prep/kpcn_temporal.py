@@ -116,6 +116,15 @@ def warp_to_centre(frames: Sequence[PreparedFrame], src: int, dst: int) -> tuple
     """Frame ``src``'s tensors (packed in their dict order) on frame ``dst``'s grid and the
     validity mask ``(1, 1, H, W)`` (see the module docstring)."""
     x, _ = _pack(frames[src].tensors)
+    return warp_image(frames, x, src, dst)
+
+
+def warp_image(
+    frames: Sequence[PreparedFrame], x: Tensor, src: int, dst: int
+) -> tuple[Tensor, Tensor]:
+    """``x`` ``(1, C, H, W)``, an image on frame ``src``'s grid (its tensors, or a recurrent
+    model's output of that frame), warped to frame ``dst`` along the frames' motion with the
+    disocclusion test, and the validity mask (see the module docstring)."""
     mask = torch.ones_like(x[:, :1])
     step = 1 if src < dst else -1
     j = src
@@ -175,6 +184,7 @@ __all__ = [
     "PreparedFrame",
     "frame_guides",
     "prepare_frame",
+    "warp_image",
     "warp_to_centre",
     "warp_window",
 ]

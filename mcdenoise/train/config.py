@@ -28,7 +28,7 @@ from typing import Any, get_type_hints
 from mcdenoise.errors import InputError
 from mcdenoise.losses import LOSSES as LOSS_FUNCTIONS
 from mcdenoise.modelfile import MAX_WIDTH
-from mcdenoise.models.kpcn_temporal import MAX_WINDOW
+from mcdenoise.models.kpcn_temporal import MAX_WINDOW, MIXER_INPUTS
 
 #: Training losses a config may name (``""``: the model's default, see :data:`DEFAULT_LOSS`):
 #: those of :mod:`mcdenoise.losses`, and ``log-relmse``
@@ -144,6 +144,14 @@ class TrainConfig:
             (:func:`mcdenoise.losses.temporal_smape`) added to ``loss``.
         trunk: kpcn-temporal: ``frozen`` (train the temporal module only, the paper's first
             stage) or ``train`` (fine-tune everything).
+        temporal_inputs: kpcn-temporal: the temporal module's inputs (card ``inputs``: 1, the
+            trunk's features and masks; 2, also the noise-normalised difference to frame t
+            and the variance ratio).
+        recurrent: kpcn-temporal: the previous output, warped to frame t, is one more kernel
+            source (trained on three consecutive frames, unrolled).
+        temporal_loss: kpcn-temporal: ``warped`` (the previous output and reference warped to
+            frame t along the motion, masked where the warp is invalid) or ``same-pixel``
+            (frame differences at the same pixel, the first shipped model's).
     """
 
     model: str = "kalantari-xbf"
@@ -190,6 +198,9 @@ class TrainConfig:
     temporal_mode: str = "offline"
     temporal_weight: float = 0.5
     trunk: str = "frozen"
+    temporal_inputs: int = 2
+    recurrent: bool = False
+    temporal_loss: str = "warped"
 
     def __post_init__(self) -> None:
         if not self.loss:
@@ -235,6 +246,15 @@ class TrainConfig:
             (
                 self.trunk in ("frozen", "train"),
                 f"trunk must be frozen or train, got {self.trunk!r}",
+            ),
+            (
+                self.temporal_inputs in MIXER_INPUTS,
+                f"temporal_inputs must be one of {sorted(MIXER_INPUTS)}, "
+                f"got {self.temporal_inputs}",
+            ),
+            (
+                self.temporal_loss in ("warped", "same-pixel"),
+                f"temporal_loss must be warped or same-pixel, got {self.temporal_loss!r}",
             ),
             (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}"),
             (self.asym_slope >= 1, f"asym_slope must be >= 1, got {self.asym_slope}"),

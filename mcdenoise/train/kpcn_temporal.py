@@ -10,16 +10,24 @@ frame's window (``window``, ``temporal_mode``) is warped to it once
 (:func:`~mcdenoise.prep.kpcn_temporal.warp_window`; frames outside the sequence: zeros
 under a zero mask).
 
-A training crop is a pair of consecutive frames ``(t − 1, t)`` at the same pixels: both
-windows are cropped there and denoised, and the loss (on the crop centre) is
+A training crop is a pair of consecutive frames ``(t − 1, t)`` at the same pixels (a
+recurrent model: three, ``(t − 2, t − 1, t)``, unrolled: each output after the first gets the
+previous one warped to its frame as input): the windows are cropped there and denoised, and
+the loss (on the crop centre) is
 
-    SMAPE(o_t, r_t) + temporal_weight · SMAPE(o_t − o_{t−1}, r_t − r_{t−1})
+    SMAPE(o_t, r_t) + temporal_weight · SMAPE(o_t − W(o_{t−1}), r_t − W(r_{t−1}))
 
 (:func:`mcdenoise.losses.temporal_smape`; Isik et al. 2021 and Balint et al. 2023 use this
-temporal term). The differences are taken at the same pixel, not along the motion: that is
-the temporal relMSE this project reports (``mcdenoise.eval.temporal_metrics``), and the crops then
-need no motion, so flips, 90° rotations and RGB permutations (the single-frame trainer's
-augmentation) stay valid.
+temporal term). With ``temporal_loss = "warped"`` (the default) ``W`` warps frame ``t − 1``
+to frame ``t`` along the motion with the method's disocclusion test, and pixels where that
+warp is invalid do not count: camera motion is not flicker. ``same-pixel`` (the first shipped
+model's) takes ``W`` as the identity, the temporal relMSE this project reports
+(``mcdenoise.eval.temporal_metrics``). A recurrent model's terms are averaged over its last two
+outputs. The reference's warp ``W(r_{t−1})`` is made once per frame on the whole image; the
+output's on the crop, masked by that warp's validity (out-of-crop reads are invalid).
+Augmentation (``trunk = "train"`` only): flips, 90° rotations (the motion vectors turned with
+the pixels) and RGB permutations. With the frozen trunk's features cached there is none: a
+flipped crop would need the trunk run again on it (:class:`PairSampler`).
 
 Training follows the paper: the model starts from a trained single-frame kpcn (``base`` =
 ``--from``: a kpcn run folder or model file, e.g. the shipped
@@ -47,6 +55,7 @@ import torch
 from torch import Tensor
 
 from mcdenoise.errors import InputError, McdenoiseError
+from mcdenoise.filters.warp import warp
 from mcdenoise.geomean import geometric_mean
 from mcdenoise.io import load_buffers
 from mcdenoise.losses import compute_loss, temporal_smape
@@ -55,7 +64,7 @@ from mcdenoise.models.kpcn import KpcnModel
 from mcdenoise.models.kpcn_temporal import FORMAT as TEMPORAL_FORMAT
 from mcdenoise.models.kpcn_temporal import TemporalKpcn, from_single_frame, window_offsets
 from mcdenoise.prep.kpcn import exposure_scale
-from mcdenoise.prep.kpcn_temporal import PreparedFrame, prepare_frame, warp_window
+from mcdenoise.prep.kpcn_temporal import PreparedFrame, prepare_frame, warp_image, warp_window
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.loop import TrainResult, run_training
 from mcdenoise.train.patches import LoadReport, augment
@@ -76,6 +85,11 @@ class Sequence_:
     features: list[list[list[Tensor]]] = field(default_factory=list)
     refs: list[Tensor] = field(default_factory=list)
     frames: list[PreparedFrame] = field(default_factory=list)
+    #: per frame: its motion to the previous frame ``(1, 2, H, W)`` (0 without), the previous
+    #: reference warped to it and where that warp is valid (0 for the first frame)
+    motion: list[Tensor] = field(default_factory=list)
+    warped_refs: list[Tensor] = field(default_factory=list)
+    warp_masks: list[Tensor] = field(default_factory=list)
     scale: float = 1.0
 
     @property
@@ -123,12 +137,28 @@ def load_sequence(
             frame.tensors["color_var"] = frame.tensors["color_var"] * (k * k)
         seq.frames.append(frame)
         seq.refs.append(torch.nan_to_num(ref.float(), nan=0.0, posinf=0.0).clamp_min(0)[None] * k)
+    motion_targets(seq)
     if windows:
         for t in range(len(seq.frames)):
             tens, masks, _ = warp_window(seq.frames, t, offsets, fill=True)
             seq.windows.append((tens, masks))
-        seq.frames = []
     return seq
+
+
+def motion_targets(seq: Sequence_) -> None:
+    """Fill ``seq``'s per-frame motion, previous reference warped to the frame and that warp's
+    mask from its ``frames`` and ``refs`` (the warped temporal loss's targets)."""
+    seq.motion, seq.warped_refs, seq.warp_masks = [], [], []
+    for t, frame in enumerate(seq.frames):
+        ref = seq.refs[t]
+        motion = frame.motion if frame.motion is not None else torch.zeros_like(ref[:, :2])
+        if t == 0:
+            wref, wmask = torch.zeros_like(ref), torch.zeros_like(ref[:, :1])
+        else:
+            wref, wmask = warp_image(seq.frames, seq.refs[t - 1], t - 1, t)
+        seq.motion.append(motion)
+        seq.warped_refs.append(wref)
+        seq.warp_masks.append(wmask)
 
 
 @torch.no_grad()
@@ -145,15 +175,23 @@ def cache_features(model: TemporalKpcn, seqs: Sequence[Sequence_]) -> None:
     model.train()
 
 
-class PairSampler:
-    """Seeded batches of crops of consecutive frame pairs (``(t − 1, t)``, see the module
-    docstring); the duck type of :class:`~mcdenoise.train.patches.PatchSampler` that
-    :func:`mcdenoise.train.loop.train` uses (``batch(size, generator)``)."""
+#: Batch key prefixes of frames ``t``, ``t − 1``, ``t − 2`` of a training crop.
+PREFIXES = ("", "p:", "pp:")
 
-    def __init__(self, seqs: Sequence[Sequence_], *, patch: int, margin: int, aug: bool) -> None:
-        self.pairs = [(i, t) for i, s in enumerate(seqs) for t in range(1, len(s.windows))]
+
+class PairSampler:
+    """Seeded batches of crops of consecutive frames (``(t − 1, t)``, or with ``frames=3``
+    ``(t − 2, t − 1, t)``; see the module docstring); the duck type of
+    :class:`~mcdenoise.train.patches.PatchSampler` that :func:`mcdenoise.train.loop.train`
+    uses (``batch(size, generator)``)."""
+
+    def __init__(
+        self, seqs: Sequence[Sequence_], *, patch: int, margin: int, aug: bool, frames: int = 2
+    ) -> None:
+        self.frames = frames
+        self.pairs = [(i, t) for i, s in enumerate(seqs) for t in range(frames - 1, len(s.windows))]
         if not self.pairs:
-            raise InputError("no training sequence has two frames")
+            raise InputError(f"no training sequence has {frames} frames")
         self.seqs = list(seqs)
         self.patch, self.margin, self.crop = patch, margin, patch + 2 * margin
         small = [s.name for s in seqs if min(s.size) < self.crop]
@@ -182,6 +220,9 @@ class PairSampler:
                         :, y // d : (y + c) // d, x // d : (x + c) // d
                     ]
         out[f"{prefix}reference"] = s.refs[t][0, :, y : y + c, x : x + c]
+        out[f"{prefix}motion"] = s.motion[t][0, :, y : y + c, x : x + c]
+        out[f"{prefix}warped_reference"] = s.warped_refs[t][0, :, y : y + c, x : x + c]
+        out[f"{prefix}warp_mask"] = s.warp_masks[t][0, :, y : y + c, x : x + c]
         return out
 
     def batch(self, size: int, g: torch.Generator) -> dict[str, Tensor]:
@@ -193,21 +234,29 @@ class PairSampler:
             a = self.align
             y = a * int(torch.randint((h - self.crop) // a + 1, (), generator=g))
             x = a * int(torch.randint((w - self.crop) // a + 1, (), generator=g))
-            items.append({**self._window(s, t, y, x, ""), **self._window(s, t - 1, y, x, "p:")})
+            item: dict[str, Tensor] = {}
+            for j, prefix in enumerate(PREFIXES[: self.frames]):
+                item.update(self._window(s, t - j, y, x, prefix))
+            items.append(item)
         batch = {k: torch.stack([it[k] for it in items]) for k in items[0]}
         m = torch.zeros(1, 1, self.crop, self.crop)
         m[..., self.margin : self.crop - self.margin, self.margin : self.crop - self.margin] = 1
         batch["mask"] = m.expand(size, -1, -1, -1).clone()
         batch["source"] = torch.zeros(size, dtype=torch.long)
-        if self.aug:
-            # cached trunk features cannot follow an RGB permutation: geometry only then
+        if self.aug and not self.seqs[0].features:
+            # Not with cached trunk features: the features of a flipped image are not the
+            # flipped features (the convolutions are not symmetric), and the kernels a head
+            # predicts from flipped features would be applied mirrored. Training the first
+            # shipped model that way made it worse than its untrained start (1.15x the
+            # single-frame relMSE on validation sequences, the untrained start 1.01x).
             colour = [
                 k
                 for k in batch
-                if k.split("@")[0].split(":")[-1] in ("color", "albedo", "reference")
-                and not self.seqs[0].features
+                if k.split("@")[0].split(":")[-1]
+                in ("color", "albedo", "reference", "warped_reference")
             ]
-            batch = augment(batch, g, colour)
+            motion = [k for k in batch if k.split(":")[-1] == "motion"]
+            batch = augment(batch, g, colour, vector_keys=motion)
         return batch
 
 
@@ -232,23 +281,52 @@ class TemporalTask:
         self.cfg = cfg
         self.val = list(val)
         self._base_scores: tuple[float, float] | None = None
+        self._last = torch.zeros(0)
+
+    @property
+    def frames(self) -> int:
+        """Frames per training crop: 3 for a recurrent model (unrolled), else 2."""
+        return 3 if self.module.recurrence is not None else 2
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
-        cur, prev = _split(batch, ""), _split(batch, "p:")
-        out = self.forward_module(cur)
-        out_prev = self.forward_module(prev)
+        parts = [_split(batch, p) for p in PREFIXES[: self.frames]][::-1]  # oldest first
+        recurrent = self.module.recurrence is not None
+        outs: list[Tensor] = []
+        for part in parts:
+            if recurrent and outs:  # the previous output, warped to this frame
+                prev, prev_mask = warp(outs[-1], part["motion"], valid=part["warp_mask"])
+                part = part | {"previous": prev, "previous_mask": prev_mask}
+            outs.append(self.forward_module(part))
         mask = batch["mask"]
-        base = compute_loss(
-            self.cfg.loss,
-            out,
-            cur["reference"],
-            mask,
-            noisy=cur["color@" + str(self.module.centre)],
-        )
-        if self.cfg.temporal_weight <= 0:
-            return base
-        temporal = temporal_smape(out, out_prev, cur["reference"], prev["reference"], mask)
-        return base + self.cfg.temporal_weight * temporal
+        scored = range(1, len(parts)) if recurrent else range(len(parts) - 1, len(parts))
+        total = torch.zeros((), dtype=outs[-1].dtype, device=outs[-1].device)
+        for j in scored:
+            cur, out = parts[j], outs[j]
+            total = total + compute_loss(
+                self.cfg.loss,
+                out,
+                cur["reference"],
+                mask,
+                noisy=cur["color@" + str(self.module.centre)],
+            )
+            if self.cfg.temporal_weight > 0:
+                total = total + self.cfg.temporal_weight * self._temporal(
+                    out, outs[j - 1], cur, parts[j - 1], mask
+                )
+        return total / len(scored)
+
+    def _temporal(
+        self,
+        out: Tensor,
+        out_prev: Tensor,
+        cur: dict[str, Tensor],
+        prev: dict[str, Tensor],
+        mask: Tensor,
+    ) -> Tensor:
+        if self.cfg.temporal_loss == "same-pixel":
+            return temporal_smape(out, out_prev, cur["reference"], prev["reference"], mask)
+        warped, valid = warp(out_prev, cur["motion"], valid=cur["warp_mask"])
+        return temporal_smape(out, warped, cur["reference"], cur["warped_reference"], mask * valid)
 
     def _scores(self, model_run) -> tuple[float, float]:
         rel, trel = [], []
@@ -270,13 +348,28 @@ class TemporalTask:
         return geometric_mean(rel), geometric_mean(trel)
 
     def _run(self, s: Sequence_, t: int) -> Tensor:
+        """Frame ``t`` as the method denoises it (frames in order: a recurrent model reads
+        its output of frame ``t − 1``, kept in ``self._last``)."""
         model = self.module
         offsets = model.card.offsets
         tens, masks = s.windows[t]
         keep = [i for i, o in enumerate(offsets) if 0 <= t + o < len(s.windows)]
         fr = [{k: v.to(self.device) for k, v in tens[i].items()} for i in keep]
         mk = [masks[i].to(self.device) for i in keep]
-        return model.denoise_window(fr, mk, keep.index(offsets.index(0)), SOURCE).cpu()
+        prev = prev_mask = None
+        if model.recurrence is not None and t > 0:
+            prev, prev_mask = warp_image(s.frames, self._last, t - 1, t)
+            prev, prev_mask = prev.to(self.device), prev_mask.to(self.device)
+        out = model.denoise_window(
+            fr,
+            mk,
+            keep.index(offsets.index(0)),
+            SOURCE,
+            previous=prev,
+            previous_mask=prev_mask,
+        ).cpu()
+        self._last = out
+        return out
 
     def _run_base(self, s: Sequence_, t: int) -> Tensor:
         tens, _ = s.windows[t]
@@ -312,13 +405,22 @@ def _base_model(cfg: TrainConfig) -> TemporalKpcn:
     card = read_card(cfg.base)
     if card.get("format") == TEMPORAL_FORMAT:
         model = TemporalKpcn.load(cfg.base)
-        if model.card.window != cfg.window or model.card.mode != cfg.temporal_mode:
+        got = (model.card.window, model.card.mode, model.card.inputs, model.card.recurrent)
+        want = (cfg.window, cfg.temporal_mode, cfg.temporal_inputs, cfg.recurrent)
+        if got != want:
             raise InputError(
-                f"{cfg.base}: a {model.card.window}-frame {model.card.mode} model; this config "
-                f"asks for window {cfg.window} ({cfg.temporal_mode})"
+                f"{cfg.base}: a {got[0]}-frame {got[1]} model (inputs {got[2]}, recurrent "
+                f"{got[3]}); this config asks for window {want[0]} ({want[1]}, inputs "
+                f"{want[2]}, recurrent {want[3]})"
             )
         return model
-    return from_single_frame(KpcnModel.load(cfg.base), window=cfg.window, mode=cfg.temporal_mode)
+    return from_single_frame(
+        KpcnModel.load(cfg.base),
+        window=cfg.window,
+        mode=cfg.temporal_mode,
+        inputs=cfg.temporal_inputs,
+        recurrent=cfg.recurrent,
+    )
 
 
 def build(
@@ -360,12 +462,15 @@ def build(
         "train_sequences": sorted(s.name for s in train),
         "val_sequences": sorted(s.name for s in val),
         "trunk": cfg.trunk,
-        "loss": f"{cfg.loss} + {cfg.temporal_weight} * temporal smape",
+        "loss": f"{cfg.loss} + {cfg.temporal_weight} * temporal smape ({cfg.temporal_loss})",
         "steps": cfg.steps,
         "base": str(cfg.base),
     }
-    sampler = PairSampler(train, patch=cfg.patch, margin=cfg.margin, aug=cfg.augment)
-    return TemporalTask(model, cfg, val), sampler, report
+    task = TemporalTask(model, cfg, val)
+    sampler = PairSampler(
+        train, patch=cfg.patch, margin=cfg.margin, aug=cfg.augment, frames=task.frames
+    )
+    return task, sampler, report
 
 
 def train_kpcn_temporal(
@@ -376,10 +481,12 @@ def train_kpcn_temporal(
 
 
 __all__ = [
+    "PREFIXES",
     "PairSampler",
     "TemporalTask",
     "build",
     "find_sequences",
     "load_sequence",
+    "motion_targets",
     "train_kpcn_temporal",
 ]

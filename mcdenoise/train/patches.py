@@ -403,13 +403,20 @@ class PatchSampler:
 
 
 def augment(
-    batch: dict[str, Tensor], g: torch.Generator, color_keys: Sequence[str] = ()
+    batch: dict[str, Tensor],
+    g: torch.Generator,
+    color_keys: Sequence[str] = (),
+    *,
+    vector_keys: Sequence[str] = (),
 ) -> dict[str, Tensor]:
     """Random flips, 90° rotations and (for ``color_keys``) RGB permutations, per crop.
 
     Every tensor ``(B, C, H, W)`` of the batch (square crops) gets the same geometric transform
     per crop; the tensors named in ``color_keys`` (3 channels: colour, albedo, reference) get
-    the same channel permutation. Randomness comes from ``g`` only.
+    the same channel permutation. The tensors named in ``vector_keys`` are 2-D pixel
+    displacements ``(x right, y down)`` (motion vectors): their components turn with the
+    image (a flip negates one, a rotation swaps them), so a warp along them commutes with the
+    transform. Randomness comes from ``g`` only.
     """
     n = next(iter(batch.values())).shape[0]
     flips = torch.randint(2, (n, 2), generator=g)
@@ -423,11 +430,16 @@ def augment(
         items = []
         for i in range(n):
             x = v[i]
+            vec = key in vector_keys
             if flips[i, 0]:
                 x = x.flip(-1)
+                x = torch.stack([-x[0], x[1]]) if vec else x
             if flips[i, 1]:
                 x = x.flip(-2)
-            x = torch.rot90(x, int(rots[i]), dims=(-2, -1))
+                x = torch.stack([x[0], -x[1]]) if vec else x
+            for _ in range(int(rots[i])):  # each quarter turn: (x, y) -> (y, -x)
+                x = torch.rot90(x, 1, dims=(-2, -1))
+                x = torch.stack([x[1], -x[0]]) if vec else x
             if key in color_keys and x.shape[0] == 3:
                 x = x[perms[i]]
             items.append(x)
