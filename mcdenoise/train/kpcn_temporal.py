@@ -67,7 +67,7 @@ from mcdenoise.prep.kpcn import exposure_scale
 from mcdenoise.prep.kpcn_temporal import PreparedFrame, prepare_frame, warp_image, warp_window
 from mcdenoise.train.config import TrainConfig
 from mcdenoise.train.loop import TrainResult, run_training
-from mcdenoise.train.patches import LoadReport, augment
+from mcdenoise.train.patches import LoadReport, augment, training_hardware
 
 #: The input source the temporal module is trained on (every frame of a render has it).
 SOURCE = "full"
@@ -465,6 +465,8 @@ def build(
         "loss": f"{cfg.loss} + {cfg.temporal_weight} * temporal smape ({cfg.temporal_loss})",
         "steps": cfg.steps,
         "base": str(cfg.base),
+        "hardware": training_hardware(cfg.device),
+        "config": cfg.to_dict(),
     }
     task = TemporalTask(model, cfg, val)
     sampler = PairSampler(

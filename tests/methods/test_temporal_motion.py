@@ -92,9 +92,31 @@ def sequence(kind: str) -> tuple[list[FeatureBuffers], list[torch.Tensor]]:
     return frames, refs
 
 
-def _scores(outs: list[torch.Tensor], refs: list[torch.Tensor]) -> tuple[float, float]:
+def warped_temporal_relmse(
+    outs: list[torch.Tensor], refs: list[torch.Tensor], frames: list[FeatureBuffers]
+) -> float:
+    """Temporal relMSE along the motion: ``o_t − W(o_{t−1})`` against ``r_t − W(r_{t−1})``
+    (``W``: the backward warp along frame t's motion), over the pixels where the warp is
+    valid; flicker, not the motion itself."""
+    from mcdenoise.filters.warp import warp
+
+    vals = []
+    for t in range(1, len(outs)):
+        m = frames[t]["motion"][None]
+        wo, valid = warp(outs[t - 1][None].double(), m.double())
+        wr, _ = warp(refs[t - 1][None].double(), m.double())
+        d = ((outs[t].double() - wo[0]) - (refs[t].double() - wr[0])) ** 2
+        e = (d / (refs[t].double() ** 2 + 0.01)).mean(0)[valid[0, 0] > 0.5]
+        vals.append(float(e.mean()))
+    return sum(vals) / len(vals)
+
+
+def _scores(
+    outs: list[torch.Tensor], refs: list[torch.Tensor], frames: list[FeatureBuffers]
+) -> tuple[float, float, float]:
     rel = sum(float(((o - r) ** 2 / (r**2 + 0.01)).mean()) for o, r in zip(outs, refs))
-    return rel / len(outs), temporal_relmse([o.numpy() for o in outs], [r.numpy() for r in refs])
+    trel = temporal_relmse([o.numpy() for o in outs], [r.numpy() for r in refs])
+    return rel / len(outs), trel, warped_temporal_relmse(outs, refs, frames)
 
 
 def _kpcn(frames: list[FeatureBuffers]) -> list[torch.Tensor]:
@@ -106,27 +128,45 @@ def _temporal(model: TemporalKpcn, frames: list[FeatureBuffers]) -> list[torch.T
     return list(denoise_kpcn_temporal_sequence(model, frames))
 
 
-def ratios(kind: str) -> dict[str, tuple[float, float]]:
-    """Per model: (per-frame relMSE, temporal relMSE) as ratios to the per-frame kpcn's."""
+def ratios(
+    kind: str, offline: Path | None = None, causal: Path | None = None
+) -> dict[str, tuple[float, ...]]:
+    """Per model: (per-frame relMSE, temporal relMSE, the same along the motion) as ratios to
+    the per-frame kpcn's
+    (``offline`` / ``causal``: model files, default the shipped ones)."""
     frames, refs = sequence(kind)
-    rel0, trel0 = _scores(_kpcn(frames), refs)
+    base = _scores(_kpcn(frames), refs, frames)
     models = {
-        "offline": load_kpcn_temporal(shipped_model_path("kpcn-temporal")),
+        "offline": load_kpcn_temporal(offline or shipped_model_path("kpcn-temporal")),
         "untrained": from_single_frame(load_kpcn(shipped_model_path("kpcn")), window=5).eval(),
+        "untrained-causal": from_single_frame(
+            load_kpcn(shipped_model_path("kpcn")),
+            window=3,
+            mode="causal",
+            inputs=2,
+            recurrent=True,
+        ).eval(),
     }
-    if shipped_model_path("kpcn-temporal", "causal").is_file():
-        models["causal"] = load_kpcn_temporal(shipped_model_path("kpcn-temporal", "causal"))
+    causal = causal or shipped_model_path("kpcn-temporal", "causal")
+    if causal.is_file():
+        models["causal"] = load_kpcn_temporal(causal)
     out = {}
     for name, model in models.items():
-        rel, trel = _scores(_temporal(model, frames), refs)
-        out[name] = (rel / rel0, trel / trel0)
+        got = _scores(_temporal(model, frames), refs, frames)
+        out[name] = tuple(a / b for a, b in zip(got, base))
     return out
 
 
-if __name__ == "__main__":  # the figures the bounds below were set from
+if __name__ == "__main__":  # the figures the bounds were set from; argv: offline, causal models
+    import sys
+
+    paths = [Path(a) for a in sys.argv[1:3]] + [None, None]
     for kind in ("translate", "rotate"):
-        for name, (rel, trel) in ratios(kind).items():
-            print(f"{kind:10s} {name:10s} relMSE {rel:.3f}x kpcn, temporal {trel:.3f}x kpcn")
+        for name, (rel, trel, wtrel) in ratios(kind, paths[0], paths[1]).items():
+            print(
+                f"{kind:10s} {name:10s} relMSE {rel:.3f}x kpcn, temporal {trel:.3f}x, "
+                f"along the motion {wtrel:.3f}x"
+            )
 
 
 @pytest.mark.parametrize("kind", ["translate", "rotate"])
@@ -144,3 +184,42 @@ def test_the_motion_buffers_are_exact(kind: str) -> None:
             err = ((w[0] - refs[t]) ** 2 / (refs[t] ** 2 + 0.01)).mean(0)[m]
             assert float(m.float().mean()) > 0.9
             assert float(err.mean()) < 2e-3, (kind, t, key)
+
+
+@pytest.fixture(scope="module", params=["translate", "rotate"])
+def measured(request) -> tuple[str, dict[str, tuple[float, float, float]]]:
+    """Per shipped model (offline, causal): (per-frame, temporal, along-the-motion) relMSE
+    as ratios to the per-frame kpcn on the sequence ``kind``."""
+    kind = request.param
+    frames, refs = sequence(kind)
+    base = _scores(_kpcn(frames), refs, frames)
+    paths = {"offline": shipped_model_path("kpcn-temporal")}
+    if shipped_model_path("kpcn-temporal", "causal").is_file():
+        paths["causal"] = shipped_model_path("kpcn-temporal", "causal")
+    out = {}
+    for name, path in paths.items():
+        got = _scores(_temporal(load_kpcn_temporal(path), frames), refs, frames)
+        out[name] = tuple(a / b for a, b in zip(got, base))
+    return kind, out
+
+
+def test_temporal_models_beat_the_single_frame_kpcn_under_known_motion(measured) -> None:
+    """Measured (``python tests/methods/test_temporal_motion.py``): temporal relMSE 0.60× /
+    0.44× kpcn (offline; translation / rotation), 0.86× / 0.43× (causal)."""
+    kind, got = measured
+    for name, (_, trel, _) in got.items():
+        assert trel <= 0.9, (kind, name, trel)
+
+
+def test_trained_models_are_more_accurate_than_their_untrained_start(measured) -> None:
+    """The bounds the untrained models fail (per-frame relMSE, ratio to kpcn): the offline
+    average of per-frame kernels 0.885 / 0.851, the untrained causal model 0.933 / 0.893;
+    measured for the shipped models 0.621 / 0.561 and 0.853 / 0.837. On these sequences
+    (Gaussian noise, exact motion) the untrained models are *more* stable frame to frame
+    (temporal relMSE 0.589 / 0.434 and 0.607 / 0.372): training on rendered sequences traded
+    some of that stability for accuracy, which the held-out renders reward
+    (docs/results/temporal.md)."""
+    kind, got = measured
+    bounds = {"offline": 0.75, "causal": 0.87}
+    for name, (rel, _, _) in got.items():
+        assert rel <= bounds[name], (kind, name, rel)

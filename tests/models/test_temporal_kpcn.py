@@ -12,14 +12,12 @@ from mcdenoise.io import load_buffers
 from mcdenoise.models.encoders import SOURCES, channel_names, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnModel, new_model
-from mcdenoise.models.kpcn_temporal import (
-    TemporalKpcn,
+from mcdenoise.models.kpcn_temporal import TemporalKpcn, from_single_frame, window_offsets
+from mcdenoise.models.temporal_modules import (
     apply_joint,
     frame_log_softmax,
-    from_single_frame,
     joint_kernel_softmax,
     tap_valid,
-    window_offsets,
 )
 from mcdenoise.prep.kpcn import prepare_tensors
 from mcdenoise.prep.kpcn_temporal import PreparedFrame, warp_window

@@ -13,13 +13,8 @@ from mcdenoise.modelfile import read_card
 from mcdenoise.models.encoders import channel_names, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import KpcnModel, new_model
-from mcdenoise.models.kpcn_temporal import (
-    RECURRENT_BIAS,
-    TemporalCard,
-    TemporalKpcn,
-    from_single_frame,
-    noise_inputs,
-)
+from mcdenoise.models.kpcn_temporal import TemporalCard, TemporalKpcn, from_single_frame
+from mcdenoise.models.temporal_modules import RECURRENT_BIAS, clamp_history, noise_inputs
 from mcdenoise.prep.kpcn import prepare_tensors
 
 SAMPLES = Path(__file__).resolve().parents[2] / "data" / "samples"
@@ -106,23 +101,35 @@ def test_recurrent_model_without_a_previous_output_is_the_window_model(base, cro
     assert torch.equal(d, base.denoise_tensors(frames[1], "full"))
 
 
-def test_the_previous_output_is_blended_in_where_valid_and_its_weight_starts_small(
-    base, crop
-) -> None:
+def test_the_previous_output_is_blended_in_where_valid_and_clamped_to_frame_t(base, crop) -> None:
     m = from_single_frame(base, window=2, mode="causal", hidden=[4, 4, 4], recurrent=True).eval()
     frames = [_noisy(crop, 1), _noisy(crop, 2)]
     masks = [torch.ones_like(crop["color"][:, :1])] * 2
+    prev_mask = torch.zeros_like(masks[0])
+    prev_mask[..., :, :16] = 1.0
     with torch.no_grad():
         a = m.run(frames, masks, 1, "full")
-        prev_mask = torch.zeros_like(masks[0])
-        prev_mask[..., :, :16] = 1.0
-        b = m.run(frames, masks, 1, "full", previous=a + 1.0, previous_mask=prev_mask)
+        b = m.run(frames, masks, 1, "full", previous=a * 1.5, previous_mask=prev_mask)
+        c = m.run(frames, masks, 1, "full", previous=a + 1e6, previous_mask=prev_mask)
     # the right half has no valid history: the same output there
     assert torch.equal(a[..., :, 17:], b[..., :, 17:])
-    # the left half moves toward the (brighter) previous output by about sigmoid(bias)
+    # the left half moves toward the (brighter) previous output, by about sigmoid(bias)
     beta = float(torch.sigmoid(torch.tensor(RECURRENT_BIAS)))
-    gain = float((b - a)[..., 2:-2, 2:14].mean())
-    assert 0.5 * beta < gain < 2.0 * beta
+    gain = float(((b - a) / (0.5 * a + 1e-3))[..., 2:-2, 2:14].median())
+    assert 0.3 * beta < gain < 1.5 * beta
+    # a history far above anything frame t shows near it is clamped to frame t's 3×3 range
+    assert bool(torch.isfinite(c).all())
+    assert float(c.max()) <= max(float(a.max()), float(frames[1]["color"].max())) * 1.01
+
+
+def test_clamp_history_to_the_noisy_neighbourhood() -> None:
+    noisy = torch.zeros(1, 1, 5, 5)
+    noisy[..., 2, 2] = 4.0
+    prev = torch.full((1, 1, 5, 5), 10.0)
+    out = clamp_history(prev, noisy)
+    assert float(out[..., 2, 2]) == 4.0 and float(out[..., 1, 1]) == 4.0  # the bright pixel's 3×3
+    assert float(out[..., 0, 0]) == 0.0  # nothing bright near a corner: clamped to 0
+    assert torch.equal(clamp_history(noisy, noisy), noisy)  # frame t itself passes unchanged
 
 
 def test_recurrent_card_round_trip_and_old_cards_still_load(base, tmp_path: Path) -> None:

@@ -117,6 +117,7 @@ def test_every_shipped_model_file_names_its_own_method() -> None:
         "kalantari-xbf": "kalantari-xbf",
         "kpcn-learned": "kpcn",
         "kpcn-temporal": "kpcn-temporal",
+        "kpcn-temporal-causal": "kpcn-temporal",
         "kpcn": "kpcn",
         "nnao": "nnao",
     }

@@ -75,6 +75,14 @@ def test_pair_crops_and_a_frozen_trunk_step() -> None:
     batch = sampler.batch(2, torch.Generator().manual_seed(1))
     assert batch["color@1"].shape == (2, 3, 24, 24) and batch["p:color@1"].shape == (2, 3, 24, 24)
     assert batch["feat2@0"].shape[-1] == 6  # the coarsest scale's features, cropped with it
+    # no flips or rotations of cached features: every crop is a plain window of the frame
+    for crop in [*batch["color@1"], *batch["p:color@1"]]:
+        assert any(
+            torch.equal(crop, w[:, y : y + 24, x : x + 24])
+            for w in [seq.windows[t][0][1]["color"][0] for t in range(3)]
+            for y in range(9)
+            for x in range(9)
+        )
     cfg = load_config(None, {"model": "kpcn-temporal", "temporal_weight": "0.5"})
     task = TemporalTask(model, cfg, [seq])
     loss = task.loss(batch)

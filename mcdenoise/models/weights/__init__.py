@@ -3,7 +3,8 @@
 ``kalantari-xbf.pt`` (245 scenes), ``kalantari-nlm.pt`` and ``kalantari-xbf-noalbedo.pt``
 (the first 120 of them) were trained by the commands in ``data/recipes/kalantari.md`` on
 ``mcdenoise render`` data (seed 1000) that no reported evaluation uses. ``kpcn-temporal.pt``
-(the temporal kpcn around ``kpcn.pt``): ``data/recipes/kpcn-temporal.md``. ``kpcn.pt`` and
+and ``kpcn-temporal-causal.pt`` (the temporal kpcn around ``kpcn.pt``, offline and recurrent
+causal): ``data/recipes/kpcn-temporal.md``. ``kpcn.pt`` and
 ``kpcn-learned.pt`` (the variant ``kpcn -p prefilter=learned`` loads): ``data/recipes/kpcn.md``;
 ``auxnet.pt`` (that prefilter): ``data/recipes/auxnet.md``. ``nnao.pt``: ``data/recipes/nnao.md``. :func:`load_kalantari` accepts a model file or a run folder (its
 ``model.pt``) and caches the loaded model per file and modification time.
