@@ -106,8 +106,7 @@ def denoise_kpcn_temporal_sequence(
     def output(t: int) -> Tensor:
         lo, hi = max(0, t - past), min(max(kept) + 1, t + future + 1)
         seq = [kept[j] for j in range(lo, hi)]
-        win = [o for o in offsets if lo <= t + o < hi]
-        tens, masks, centre = warp_window(seq, t - lo, win)
+        tens, masks, centre = warp_window(seq, t - lo, offsets)
         prev = prev_mask = None
         if recurrent and last and t > lo:
             prev, prev_mask = warp_image(seq, last[0], t - 1 - lo, t - lo)

@@ -14,7 +14,7 @@ from mcdenoise.losses import temporal_smape
 from mcdenoise.models.encoders import channel_names, source_channels
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.kpcn import new_model
-from mcdenoise.models.kpcn_temporal import from_single_frame
+from mcdenoise.models.kpcn_temporal import TemporalKpcn, from_single_frame
 from mcdenoise.prep.kpcn import prepare_tensors
 from mcdenoise.prep.kpcn_temporal import PreparedFrame, warp_window
 from mcdenoise.train.config import load_config
@@ -43,16 +43,19 @@ def test_no_sequence_folder_is_one_line_error(tmp_path: Path) -> None:
         find_sequences(str(tmp_path))
 
 
-def test_pair_crops_and_a_frozen_trunk_step() -> None:
+def _tiny(**kwargs) -> tuple[dict[str, torch.Tensor], TemporalKpcn]:
+    """Prepared ``full`` tensors of a 32×32 Cornell crop and a small temporal model around an
+    untrained kpcn (``kwargs``: :func:`from_single_frame`'s)."""
     b = load_buffers(SAMPLES / "cornell_spp4.exr").crop(40, 40, 32, 32)
     t = {k: v[None] for k, v in prepare_tensors(b, "full").items()}
     stats = {"full": FeatureStats.from_samples(channel_names("full"), [source_channels("full", t)])}
     torch.manual_seed(0)
-    model = from_single_frame(
-        new_model(["full"], stats, channels=(8, 8, 8), kernel=3, scales=3),
-        window=3,
-        hidden=[4, 4, 4],
-    )
+    base = new_model(["full"], stats, channels=(8, 8, 8), kernel=3, scales=3)
+    return t, from_single_frame(base, hidden=[4, 4, 4], **kwargs)
+
+
+def test_pair_crops_and_a_frozen_trunk_step() -> None:
+    t, model = _tiny(window=3)
     g = torch.Generator().manual_seed(0)
     frames = []
     for i in range(3):
@@ -97,18 +100,7 @@ def test_pair_crops_and_a_frozen_trunk_step() -> None:
 def test_recurrent_triples_with_motion_and_the_warped_temporal_term() -> None:
     """A recurrent model trains on three frames unrolled; the warped temporal loss is 0 for
     outputs that follow the reference's motion exactly and positive for flicker."""
-    b = load_buffers(SAMPLES / "cornell_spp4.exr").crop(40, 40, 32, 32)
-    t = {k: v[None] for k, v in prepare_tensors(b, "full").items()}
-    stats = {"full": FeatureStats.from_samples(channel_names("full"), [source_channels("full", t)])}
-    torch.manual_seed(0)
-    model = from_single_frame(
-        new_model(["full"], stats, channels=(8, 8, 8), kernel=3, scales=3),
-        window=2,
-        mode="causal",
-        hidden=[4, 4, 4],
-        inputs=2,
-        recurrent=True,
-    )
+    t, model = _tiny(window=2, mode="causal", inputs=2, recurrent=True)
     g = torch.Generator().manual_seed(0)
     frames, refs = [], []
     for i in range(4):  # the content moves 1 px right per frame
