@@ -9,7 +9,8 @@ own (median of ``--repeat`` runs after a warm-up, ``--threads`` torch threads):
   the encoders' normalisation inputs);
 * ``  of which prefilter``: the adaptive guide prefilter alone
   (:func:`mcdenoise.prep.kpcn.prepare_tensors` with ``prefilter=off`` subtracted);
-* ``features``: the source encoder and U-Net trunk (:meth:`KpcnModel.features`);
+* ``features``: the source encoder and U-Net trunk (:meth:`KpcnModel.features`), in the
+  precision the method picks (``--precision``, default ``auto``: bfloat16 on a CPU that has it);
 * ``kernels``: kernel prediction, softmax and application at every scale and the compositor
   (:meth:`KpcnModel.reconstruct`);
 * ``model (tiled)``: :meth:`KpcnModel.denoise_tensors`, the whole network as the method runs
@@ -40,12 +41,14 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import torch
 
 from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.buffers import FeatureBuffers
+from mcdenoise.models.precision import PRECISIONS, resolve_precision
 from mcdenoise.models.weights import load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import DEFAULT_PREFILTER, prepare_tensors, source_for
 from mcdenoise.threads import apply_threads
@@ -86,8 +89,9 @@ def _oidn(b: FeatureBuffers, repeat: int) -> float | None:
     return _median(lambda: run(b, params, torch.device("cpu")), repeat)
 
 
-def profile(size: tuple[int, int], layout: str, repeat: int, tmp: Path) -> None:
+def profile(size: tuple[int, int], layout: str, repeat: int, tmp: Path, precision: str) -> None:
     b = _input(size, layout)
+    precision = resolve_precision(precision, "cpu")
     path = tmp / f"in_{size[0]}x{size[1]}.exr"
     save_buffers(path, b)
     model = load_kpcn(shipped_model_path("kpcn"))
@@ -104,18 +108,22 @@ def profile(size: tuple[int, int], layout: str, repeat: int, tmp: Path) -> None:
     from mcdenoise.filters.albedo import demodulate
 
     with torch.no_grad():
-        rows.append(("features", _median(lambda: model.features(tc, src), repeat)))
-        feats = model.features(tc, src)
+        rows.append(("features", _median(lambda: model.features(tc, src, precision), repeat)))
+        feats = model.features(tc, src, precision)
         irr, _ = demodulate(tc["color"], tc.get("albedo"))
         rows.append(("kernels", _median(lambda: model.reconstruct(irr, feats), repeat)))
         feats = []
-        rows.append(("model (tiled)", _median(lambda: model.denoise_tensors(t, src), repeat)))
-        out = model.denoise_tensors(t, src)[0]
+        tiled = partial(model.denoise_tensors, t, src, precision=precision)
+        rows.append(("model (tiled)", _median(tiled, repeat)))
+        out = tiled()[0]
     res = FeatureBuffers({"color": out})
     rows.append(("write", _median(lambda: save_buffers(tmp / "out.exr", res), repeat)))
     total = sum(v for k, v in rows if k in ("read", "prepare", "model (tiled)", "write"))
     mp = size[0] * size[1] / 1e6
-    print(f"\nkpcn, {size[0]}x{size[1]} ({mp:.2f} MP, layout {layout}, source {src})")
+    print(
+        f"\nkpcn, {size[0]}x{size[1]} ({mp:.2f} MP, layout {layout}, source {src}, "
+        f"trunk {precision})"
+    )
     for name, sec in rows:
         print(f"  {name:22s} {sec:8.3f} s  {100 * sec / total:5.1f} %")
     print(f"  {'sum (read..write)':22s} {total:8.3f} s")
@@ -178,6 +186,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--top", type=int, default=12)
     ap.add_argument("--no-startup", action="store_true")
+    ap.add_argument(
+        "--precision", choices=PRECISIONS, default="auto", help="the trunk's, as -p precision"
+    )
     args = ap.parse_args()
     apply_threads(args.threads)
     os.environ.setdefault("OIDN_NUM_THREADS", str(args.threads))
@@ -185,7 +196,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for s in args.sizes.split(","):
             w, h = (int(x) for x in s.lower().split("x"))
-            profile((w, h), args.layout, args.repeat, Path(tmp))
+            profile((w, h), args.layout, args.repeat, Path(tmp), args.precision)
     if not args.no_startup:
         startup(args.top)
 

@@ -25,6 +25,7 @@ from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.method import Method, check_choice
 from mcdenoise.methods._learned import missing_weights, model_path, source_needs
 from mcdenoise.models.kpcn import STRIP, TILE, KpcnModel
+from mcdenoise.models.precision import PRECISIONS, resolve_precision
 from mcdenoise.models.weights import SHIPPED, load_kpcn, shipped_model_path
 from mcdenoise.prep.kpcn import (
     DEFAULT_PREFILTER,
@@ -47,6 +48,7 @@ def denoise_kpcn(
     exposure: str = "auto",
     tile: int = TILE,
     strip: int = STRIP,
+    precision: str = "fp32",
 ) -> Tensor:
     """Denoise one image; returns ``(3, H, W)`` float32 linear HDR colour (finite, >= 0).
 
@@ -63,17 +65,20 @@ def denoise_kpcn(
         tile: tile edge in pixels (rounded up to :attr:`KpcnModel.multiple`); the result does
             not depend on it (to float rounding).
         strip: rows of kernels materialised at once.
+        precision: the trunk's, ``fp32``, ``bf16`` or ``auto`` (bf16 where the device has it
+            natively, :mod:`~mcdenoise.models.precision`).
     """
     src = source or source_for(buffers, model.card.sources)
     if src not in model.card.sources:
         raise InputError(f"this kpcn model has no '{src}' source ({', '.join(model.card.sources)})")
     device = next(model.parameters()).device
+    precision = resolve_precision(precision, device)
     t = {k: v[None].to(device) for k, v in prepare_tensors(buffers, src, prefilter).items()}
     k = exposure_scale(t["color"]) if exposure == "auto" else 1.0
-    if k == 1.0:
-        return model.denoise_tensors(t, src, tile=tile, strip=strip)[0]
-    out = model.denoise_tensors(scale_exposure(t, k), src, tile=tile, strip=strip)[0]
-    return out / k
+    if k != 1.0:
+        t = scale_exposure(t, k)
+    out = model.denoise_tensors(t, src, tile=tile, strip=strip, precision=precision)[0]
+    return out if k == 1.0 else out / k
 
 
 #: Shipped variant trained with ``prefilter=learned`` features: with the shipped
@@ -103,6 +108,7 @@ def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> 
     source = str(params["source"])
     prefilter = check_choice("kpcn", "prefilter", str(params["prefilter"]), PREFILTER_MODES)
     exposure = check_choice("kpcn", "exposure", str(params["exposure"]), EXPOSURE_MODES)
+    precision = check_choice("kpcn", "precision", str(params["precision"]), PRECISIONS)
     return denoise_kpcn(
         model,
         b,
@@ -110,13 +116,15 @@ def _run(b: FeatureBuffers, params: Mapping[str, Any], device: torch.device) -> 
         prefilter=prefilter,
         exposure=exposure,
         tile=int(params["tile"]),
+        precision=precision,
     )
 
 
 METHOD = Method(
     name="kpcn",
     summary="kernel-predicting CNN, source-aware encoder, 3-scale kernels (Bako 2017, "
-    "Vogels 2018); -p model=RUN, -p prefilter=adaptive|learned|auto|all|off, -p exposure=auto|off",
+    "Vogels 2018); -p model=RUN, -p prefilter=adaptive|learned|auto|all|off, "
+    "-p exposure=auto|off, -p precision=auto|fp32|bf16",
     requires=("color", "albedo", "normal"),
     uses=("color_var", *GUIDE_FEATURES, *GUIDE_VARS),
     defaults={
@@ -125,6 +133,7 @@ METHOD = Method(
         "prefilter": DEFAULT_PREFILTER,
         "exposure": "auto",
         "tile": 1024,
+        "precision": "auto",
     },
     run=_run,
     check_input=_check,

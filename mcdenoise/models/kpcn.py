@@ -67,6 +67,7 @@ from mcdenoise.models.encoders import (
 )
 from mcdenoise.models.features import FeatureStats
 from mcdenoise.models.multiscale import apply_head, composite, downsample
+from mcdenoise.models.precision import trunk_autocast
 
 #: Version of the model file layout.
 FORMAT = "mcdenoise.kpcn/1"
@@ -250,9 +251,19 @@ class KpcnModel(CardModule):
             outs.append(x)
         return outs[::-1]
 
-    def features(self, t: Mapping[str, Tensor], source: str) -> list[Tensor]:
-        """Decoder features of prepared tensors, full resolution first (:meth:`trunk`)."""
-        return self.trunk(self.encode(source_channels(source, t), source))
+    def features(
+        self, t: Mapping[str, Tensor], source: str, precision: str = "fp32"
+    ) -> list[Tensor]:
+        """Decoder features of prepared tensors, full resolution first (:meth:`trunk`).
+
+        ``precision="bf16"`` runs the encoder and trunk under bfloat16 autocast and returns the
+        features as float32 (:mod:`~mcdenoise.models.precision`)."""
+        raw = source_channels(source, t)
+        if precision == "fp32":
+            return self.trunk(self.encode(raw, source))
+        with trunk_autocast(precision, raw.device):
+            feats = self.trunk(self.encode(raw, source))
+        return [f.float() for f in feats]
 
     def reconstruct(self, irr: Tensor, feats: Sequence[Tensor], strip: int | None = None) -> Tensor:
         """Kernels at every scale applied to ``irr`` and composited (float32)."""
@@ -267,10 +278,17 @@ class KpcnModel(CardModule):
             res = composite(fine, res, alpha)
         return res
 
-    def run(self, t: Mapping[str, Tensor], source: str, strip: int | None = None) -> Tensor:
-        """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`)."""
+    def run(
+        self,
+        t: Mapping[str, Tensor],
+        source: str,
+        strip: int | None = None,
+        precision: str = "fp32",
+    ) -> Tensor:
+        """Denoise prepared tensors ``(B, C, H, W)`` (sizes multiples of :attr:`multiple`);
+        ``precision`` is the trunk's (:meth:`features`)."""
         irr, factor = demodulate(t["color"], t.get("albedo"))
-        feats = self.features(t, source)
+        feats = self.features(t, source, precision)
         if self.card.albedo_kernels and "albedo" in t:
             factor = apply_head(factor, feats[0], self.albedo_head, self.card.kernel, strip=strip)
         out = self.reconstruct(irr, feats, strip) * factor.to(irr.dtype)
@@ -306,9 +324,16 @@ class KpcnModel(CardModule):
     # --- inference ---------------------------------------------------------------------
     @torch.no_grad()
     def denoise_tensors(
-        self, t: Mapping[str, Tensor], source: str, *, tile: int = TILE, strip: int = STRIP
+        self,
+        t: Mapping[str, Tensor],
+        source: str,
+        *,
+        tile: int = TILE,
+        strip: int = STRIP,
+        precision: str = "fp32",
     ) -> Tensor:
-        """Tiled :meth:`run` on prepared tensors ``(1, C, H, W)`` of any size."""
+        """Tiled :meth:`run` on prepared tensors ``(1, C, H, W)`` of any size; ``precision``
+        ``fp32`` or ``bf16`` (the trunk's, :mod:`~mcdenoise.models.precision`)."""
         h, w = t["color"].shape[-2:]
         m, halo = self.multiple, self.halo
         tile = max(m, -(-tile // m) * m)
@@ -319,17 +344,19 @@ class KpcnModel(CardModule):
                 a, b = max(0, y0 - halo), min(h, y1 + halo)
                 c, d = max(0, x0 - halo), min(w, x1 + halo)
                 sub = {k: v[..., a:b, c:d] for k, v in t.items()}
-                res = self._run_padded(sub, source, strip)
+                res = self._run_padded(sub, source, strip, precision)
                 out[..., y0:y1, x0:x1] = res[..., y0 - a : y1 - a, x0 - c : x1 - c]
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
 
-    def _run_padded(self, t: Mapping[str, Tensor], source: str, strip: int) -> Tensor:
+    def _run_padded(
+        self, t: Mapping[str, Tensor], source: str, strip: int, precision: str = "fp32"
+    ) -> Tensor:
         h, w = t["color"].shape[-2:]
         m = self.multiple
         ph, pw = -h % m, -w % m
         if ph or pw:
             t = {k: F.pad(v, (0, pw, 0, ph), mode="replicate") for k, v in t.items()}
-        return self.run(t, source, strip)[..., :h, :w]
+        return self.run(t, source, strip, precision)[..., :h, :w]
 
 
 def new_model(

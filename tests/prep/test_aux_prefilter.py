@@ -119,3 +119,14 @@ def test_without_a_normal_the_cap_holds_everywhere() -> None:
     v = aux_feature_variance(f, inp.color, inp.color_var, None)
     torch.testing.assert_close(out, prefilter_feature(f, v, PREFILTER_ESTIMATED))
     assert mse(out, f) < 1e-4  # the colour allows no noise: (almost) untouched
+
+
+def test_features_of_one_shape_are_filtered_together_bit_for_bit_as_alone() -> None:
+    b, _ = defocused_horizon(seed=3)
+    inp = prepare_inputs(b, features=["albedo", "normal"], prefilter=False)
+    out = prefilter_aux(inp.features, {}, inp.color, inp.color_var)
+    mixing = mixing_mask(inp.features["normal"])
+    for name, f in inp.features.items():
+        v = aux_feature_variance(f, inp.color, inp.color_var, mixing)
+        assert torch.equal(out[name], prefilter_feature(f, v, PREFILTER_ESTIMATED)), name
+    assert list(out) == ["albedo", "normal"]
