@@ -15,7 +15,7 @@ BIN    := $(VENV)/bin
 TORCH  ?= torch==2.13.0
 STAMP  := $(VENV)/.mcdenoise-installed
 
-.PHONY: install system-deps test test-fast test-all wheel-check lint format bench demo samples data clean
+.PHONY: install system-deps browser-deps test test-fast test-all wheel-check lint format bench demo samples data clean
 
 install: $(STAMP)
 
@@ -24,7 +24,9 @@ $(STAMP): pyproject.toml setup.py
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q $(TORCH)
-	$(BIN)/python -m pip install -q -e '.[all]'
+	@# PYTHONWARNINGS: setuptools' editable install says, as a UserWarning block, that a folder
+	@# named like the package may shadow it; that is the point of an editable install here
+	PYTHONWARNINGS=ignore::UserWarning $(BIN)/python -m pip install -q -e '.[all]'
 	@touch $@
 
 # Debian's libllvm19 makes Mitsuba's fast llvm_ad_rgb variant work (3-6x scalar_rgb); run by
@@ -36,7 +38,17 @@ system-deps:
 	  echo "note: libllvm19 not installed; Mitsuba falls back to scalar_rgb"; \
 	else echo "note: not root or no apt-get; skipping libllvm19 (Mitsuba uses scalar_rgb)"; fi
 
-test: install
+# Debian's chromium runs the report viewer's browser tests (skipped without it, failed under
+# CI=true); only the tests need it, so `make demo` does not install it.
+browser-deps:
+	@command -v chromium >/dev/null 2>&1 || \
+	if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+	  apt-get install -y -q chromium >/dev/null 2>&1 || \
+	  { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium >/dev/null 2>&1; } || \
+	  echo "note: chromium not installed; the report viewer's browser tests are skipped"; \
+	else echo "note: not root or no apt-get; no chromium: the browser tests are skipped"; fi
+
+test: install browser-deps
 	$(BIN)/python -m pytest -q
 
 # The tier to run while changing code (docs/development.md#tests): `make test` is the full
@@ -49,7 +61,7 @@ test-fast: install
 	$(BIN)/python -m pytest -q -m "not heavy" --durations=5 $(if $(PKG),tests/$(PKG))
 
 # Slow tests too (long renders, full-size memory checks).
-test-all: install
+test-all: install browser-deps
 	MCDENOISE_SLOW=1 $(BIN)/python -m pytest -q
 
 # The wheel a user's `pip install .` builds, installed into a fresh venv outside the checkout

@@ -98,10 +98,12 @@ def check_output_path(src: Path, dst: Path) -> None:
     blocker = file_in_the_way(parent)
     if blocker is not None:
         raise InputError(f"cannot write {dst}: {blocker} is a file, not a folder")
-    if not parent.is_dir():
-        raise InputError(f"output folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise InputError(f"output folder {parent} is not writable")
+    # A folder that does not exist yet is created when the output is written (after the
+    # method succeeded, so a failed run leaves no empty folder): what must be writable is
+    # the nearest folder that exists.
+    existing = next((q for q in [parent, *parent.parents] if q.is_dir()), Path("."))
+    if not os.access(existing, os.W_OK):
+        raise InputError(f"output folder {existing} is not writable")
 
 
 _EXTENSION = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}")

@@ -19,6 +19,7 @@ import torch
 
 from mcdenoise.denoise import DenoiseResult, denoise
 from mcdenoise.denoise_files import ReadOptions, WriteOptions, check_output_path
+from mcdenoise.errors import InputError
 from mcdenoise.io import load_buffers, save_buffers
 from mcdenoise.io.buffers import FeatureBuffers
 from mcdenoise.registry import Method, get_method
@@ -148,6 +149,10 @@ def write_result(
         if value is not None:  # a null of the JSON record is no header attribute
             attrs[f"mcdenoise:{key}"] = value
     attrs.update(attributes or {})
+    try:  # `-o out/x.exr` with no out/ yet: created now that there is something to write
+        dst.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create the output folder {dst.parent}: {err.strerror}") from err
     report = save_buffers(
         dst, out, half=write.half, compression=write.compression, attributes=attrs
     )

@@ -242,6 +242,9 @@ class ExperimentResult:
     notes: list[str] = field(default_factory=list)
     #: the overall findings without the flagged scenes (``None``: none or all flagged)
     without_flagged: OverallView | None = None
+    #: one line per method that does not apply to (some of) the scenes, so did not run there
+    #: (:mod:`~mcdenoise.experiments.applicability`)
+    not_applicable: list[str] = field(default_factory=list)
 
     @property
     def flagged(self) -> list[str]:
@@ -297,6 +300,7 @@ class ExperimentResult:
                 "metrics": {m: metric_spec(m).describe() for m in self.metrics},
                 "methods": [e.to_dict() for e in self.entries],
                 "skipped_methods": [{"label": k, "reason": v} for k, v in self.skipped.items()],
+                "not_applicable": self.not_applicable,
                 "strip_spp": self.strip_spp,
                 "notes": self.notes,
                 "scenes": [s.to_dict() for s in self.scenes],
@@ -350,6 +354,7 @@ def assemble(
     entries: Sequence[MethodEntry],
     skipped: Mapping[str, str],
     records: Sequence[Mapping[str, Any]],
+    not_applicable: Sequence[str] = (),
     metrics: Sequence[str],
     data_folder: Path,
     strip_spp: int,
@@ -452,6 +457,7 @@ def assemble(
         provenance=prov,
         entries=list(entries),
         skipped=dict(skipped),
+        not_applicable=list(not_applicable),
         metrics=list(metrics),
         scenes=summaries,
         records=recs,

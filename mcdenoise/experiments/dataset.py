@@ -145,6 +145,7 @@ def prepare_data(
         ref_spp=spec.ref_spp,
         variant=spec.variant,
         pass_spp=spec.pass_spp,
+        halves=spec.halves,
         seed=spec.seed,
         progress=progress,
         frames=spec.frames,

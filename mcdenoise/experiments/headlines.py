@@ -141,7 +141,8 @@ def lowest_at(result: ExperimentResult, view: OverallView, spp: int) -> str | No
             f"At {spp} spp the lowest error is <b>{_esc(best.method)}</b> ({head}); one scene "
             "gives no interval, so this may not hold on other scenes."
         )
-    ties, clear = [], 0
+    ties: list[tuple[float, str, str]] = []  # (|log ratio|, method, ratio text)
+    clear = 0
     for o in rows:
         if o is best:
             continue
@@ -150,7 +151,8 @@ def lowest_at(result: ExperimentResult, view: OverallView, spp: int) -> str | No
             continue
         text, tied = got
         if tied:
-            ties.append(f"{_esc(o.method)} ({text})")
+            closeness = abs(math.log((o.relmse or math.inf) / (best.relmse or math.inf)))
+            ties.append((closeness, o.method, text))
         else:
             clear += 1
     if not ties:
@@ -159,11 +161,13 @@ def lowest_at(result: ExperimentResult, view: OverallView, spp: int) -> str | No
             f"below each of the {clear} other methods (every ratio's "
             f"{result.spec.confidence:.0%} interval below 1)."
         )
+    ties.sort()
+    _, name, text = ties[0]
+    more = f" and {len(ties) - 1} more" if len(ties) > 1 else ""
     return (
         f"At {spp} spp <b>{_esc(best.method)}</b> has the lowest mean error ({head}), but it is "
-        "<b>tied within the interval</b> (no clear difference) with "
-        + "; ".join(ties)
-        + f". No single method is lowest at {spp} spp on these scenes."
+        f"<b>tied within the interval</b> (no clear difference) with {_esc(name)} ({text})"
+        f"{more}: no single method is lowest at {spp} spp on these scenes."
     )
 
 
@@ -215,91 +219,100 @@ def _worst(result: ExperimentResult, over: Sequence[tuple[float, Mapping[str, An
     return f"{pct(b)} ({_esc(r['scene'])}, {r['spp']} spp{ref})"
 
 
+#: At most this many headline bullets: the detail lives in the tables below them.
+MAX_HEADLINES = 5
+
+
 def bias_lines(result: ExperimentResult) -> list[str]:
-    """Methods whose |mean bias| exceeds :data:`BIAS_LIMIT` somewhere (worst case, with the
-    noisy input's bias there, and the worst outside flagged scenes), or one line saying none
-    does."""
+    """One line: the methods whose |mean bias| exceeds :data:`BIAS_LIMIT` somewhere (the
+    one with the largest named, with its worst case and the noisy input's bias there, the
+    rest counted), or one saying none does; ``[]`` without the bias metric."""
     if "bias" not in result.metrics:
         return []
-    flagged = set(result.flagged)
-    found = []
+    found: list[tuple[float, str]] = []
     for label in result.labels:
         if label == NOISY:
             continue
-        mine = [
-            (b, r) for r in result.records if r["method"] == label and (b := bias_of(r)) is not None
+        over = [
+            (b, r)
+            for r in result.records
+            if r["method"] == label and (b := bias_of(r)) is not None and abs(b) > BIAS_LIMIT
         ]
-        over = [(b, r) for b, r in mine if abs(b) > BIAS_LIMIT]
-        if not over:
-            continue
-        text = f"<b>{_esc(label)}</b> in {len(over)} of {len(mine)} results, worst {_worst(result, over)}"
-        if flagged and any(r["scene"] in flagged for _, r in over):
-            calm = [(b, r) for b, r in over if r["scene"] not in flagged]
-            text += (
-                f", outside flagged scenes {_worst(result, calm)}"
-                if calm
-                else f", within ±{BIAS_LIMIT:.0%} outside flagged scenes"
-            )
-        found.append(text)
+        if over:
+            worst = max(abs(b) for b, _ in over)
+            found.append((worst, f"<b>{_esc(label)}</b> (worst {_worst(result, over)})"))
     limit = f"{BIAS_LIMIT:.0%}"
     if not found:
         return [
             f"Every method keeps the image's energy: mean bias (output mean ÷ reference mean − "
             f"1) within ±{limit} in every scene and at every spp."
         ]
+    found.sort(key=lambda t: -t[0])
+    others = f" and {len(found) - 1} more method(s)" if len(found) > 1 else ""
     return [
-        f'<span class="lim">Mean bias beyond ±{limit}</span> (output mean ÷ reference mean − 1; '
-        "negative = darker, energy lost): "
-        + "; ".join(found)
-        + ". Where the noisy input is off by as much, the bias is noise of the input; "
-        "otherwise it is the method's (see the mean-bias table)."
+        f'<span class="lim">Mean bias beyond ±{limit}</span> (output mean ÷ reference mean − '
+        f"1) in {found[0][1]}{others}: see the mean-bias table."
     ]
 
 
+def _cautions(result: ExperimentResult) -> str | None:
+    """Where the numbers need care, in one item: results at the reference's noise floor,
+    scenes flagged for a rising noisy curve, methods that lose or add energy."""
+    parts = []
+    limited = [r for r in result.records if r.get("limited_by_reference")]
+    if limited:
+        parts.append(
+            f'<span class="lim">{len(limited)} result(s) within {FLOOR_FACTOR:g}× of the '
+            "reference's noise floor</span> (≈: the reference limits what can be measured)"
+        )
+    flagged = [s for s in result.scenes if s.flagged]
+    if flagged:
+        parts.append(
+            '<span class="lim">Flagged: the noisy error rises with more samples</span> in '
+            + ", ".join(f"<b>{_esc(s.id)}</b>" for s in flagged)
+            + " (fireflies; the means include "
+            + ("it" if len(flagged) == 1 else "them")
+            + (
+                ", the switch above the overall section leaves them out)"
+                if result.without_flagged is not None
+                else ")"
+            )
+        )
+    bias = bias_lines(result)
+    if bias and "beyond" in bias[0]:
+        parts.append(bias[0].rstrip("."))
+    return "; ".join(parts) + "." if parts else None
+
+
 def headlines(result: ExperimentResult) -> list[str]:
-    """The headline items (HTML) of the report, in order."""
+    """The headline items (HTML) of the report, in order, at most :data:`MAX_HEADLINES`, each
+    one sentence with its number (and interval where there is one)."""
     items: list[str] = []
     view = result.view
     strip = result.strip_spp
     for text in (lowest_at(result, view, strip), _speedup(view), _budget(result, view)):
         if text:
             items.append(text)
-    limited = [r for r in result.records if r.get("limited_by_reference")]
-    if limited:
-        items.append(
-            f'<span class="lim">{len(limited)} result(s) are within {FLOOR_FACTOR:g}× of the '
-            "reference's noise floor (marked ≈): there the reference limits what can be "
-            "measured.</span>"
-        )
     better = [s for s in result.stats if s.verdict == BETTER and s.spp == strip]
     if better and result.baseline != NOISY:
+        best = min(better, key=lambda s: s.ratio or math.inf)
+        conf = f"{result.spec.confidence:.0%}"
         items.append(
-            f"Clearly better than {_esc(result.baseline)} at {strip} spp (whole "
-            f"{result.spec.confidence:.0%} interval below 1): "
-            + _esc(", ".join(s.method for s in better))
+            f"Clearly better than {_esc(result.baseline)} at {strip} spp (whole {conf} interval "
+            f"below 1): {_esc(', '.join(s.method for s in better))}; the lowest ratio "
+            + _ratio_text(
+                best.method,
+                result.baseline,
+                best.ratio or math.nan,
+                best.ci_low or math.nan,
+                best.ci_high or math.nan,
+                conf,
+            )
             + "."
         )
-    flagged = [s for s in result.scenes if s.flagged]
-    if flagged:
-        rises = "; ".join(
-            f"<b>{_esc(s.id)}</b>: "
-            + ", ".join(f"{_g(ea)} at {a} spp → {_g(eb)} at {b} spp" for a, ea, b, eb in s.rises)
-            for s in flagged
-        )
-        text = (
-            '<span class="lim">Flagged: the noisy error rises with more samples</span> in '
-            f"{rises} (fireflies: a few very bright pixels dominate relMSE, see the scene's "
-            "section). The means over all scenes include them"
-        )
-        if result.without_flagged is not None:
-            again = lowest_at(result, result.without_flagged, strip)
-            text += (
-                "; every table and plot over all scenes can be switched to the scenes without "
-                "them (switch above the section)"
-                + (f". Without them, {again[0].lower()}{again[1:]}" if again else ".")
-            )
-        else:
-            text += "."
-        items.append(text)
-    items += bias_lines(result)
-    return items
+    caution = _cautions(result)
+    if caution:
+        items.append(caution)
+    else:
+        items += bias_lines(result)
+    return items[:MAX_HEADLINES]

@@ -8,8 +8,10 @@ section per scene (its curves, tables and an image strip: noisy input, every met
 reference through the same crop and tonemap, each with its per-pixel relMSE map), and ends
 with the definitions and the provenance (versions, git commit, machine, data hash, seeds).
 
-Like :mod:`mcdenoise.eval.eval_report` the page needs no network and no JavaScript: inline CSS,
-PNGs in ``images/`` referenced by relative paths. Every file is written atomically; PNGs of
+Like :mod:`mcdenoise.eval.eval_report` the page needs no network: inline CSS, PNGs in
+``images/`` referenced by relative paths. Only the interactive image viewer under each scene
+(:mod:`~mcdenoise.experiments.viewer`: ``viewer/viewer.js`` and the scenes' pixel files) uses
+JavaScript; everything else, the static image strips included, is plain HTML. Every file is written atomically; PNGs of
 an earlier report that the new page does not show are removed.
 """
 
@@ -60,6 +62,7 @@ from mcdenoise.experiments.report_tables import (
 )
 from mcdenoise.experiments.spec_fields import NOISY
 from mcdenoise.experiments.temporal_report import scene_images, scene_table, temporal_section
+from mcdenoise.experiments.viewer import viewer_section
 from mcdenoise.io import load_buffers
 from mcdenoise.io.atomic import write_text_atomic
 
@@ -202,7 +205,11 @@ def _run_table(result: ExperimentResult) -> str:
         (
             "Methods",
             _esc(", ".join(result.labels))
-            + (f'<br><span class="small">skipped: {_esc(skipped)}</span>' if skipped else ""),
+            + (f'<br><span class="small">skipped: {_esc(skipped)}</span>' if skipped else "")
+            + "".join(
+                f'<br><span class="small">not run: {_esc(line)}</span>'
+                for line in result.not_applicable
+            ),
         ),
         (
             "Timing",
@@ -471,9 +478,10 @@ def _scene_section(
         parts.append(f"<h3>Per frame and over time: {_esc(scene.id)}</h3>")
         parts.append(scene_table(result, scene))
         parts.append(scene_images(result, scene, index, out))
-        return "".join(parts)
-    parts.append(f"<h3>Images at {result.strip_spp} spp</h3>")
-    parts.append(_strip(result, scene, index, out))
+    else:
+        parts.append(f"<h3>Images at {result.strip_spp} spp</h3>")
+        parts.append(_strip(result, scene, index, out))
+    parts.append(viewer_section(result, scene, index, out))
     return "".join(parts)
 
 

@@ -47,6 +47,7 @@ from mcdenoise.eval.metrics import resolve_metrics
 from mcdenoise.eval.results import jsonable
 from mcdenoise.eval.temporal_metrics import resolve_sequence_metrics
 from mcdenoise.experiments.analysis import assemble
+from mcdenoise.experiments.applicability import plan_applicable
 from mcdenoise.experiments.dataset import (
     Level,
     SceneData,
@@ -377,7 +378,13 @@ def _run_locked(
         save_output=lambda spp: spec.outputs == "all" or spp == strip,
         warmup_frames=spec.warmup_frames,
     )
-    units = plan_units(scenes, entries)
+    plan = plan_applicable(entries, scenes)
+    entries = plan.entries
+    units = [
+        u
+        for u in plan_units(scenes, entries)
+        if (u.entry.label, u.scene.id, u.level.spp) in plan.runs
+    ]
     at_start = machine_info()
     if shard is not None:
         mine = shard_units(units, shard, scene_index=index if by_scene else None)
@@ -405,6 +412,7 @@ def _run_locked(
             scenes=scenes,
             entries=entries,
             skipped=skipped,
+            not_applicable=plan.notes(),
             records=[records[u.key] for u in units],
             metrics=names,
             data_folder=folder,

@@ -116,6 +116,7 @@ _RENDER_KEYS = (
     "pass_spp",
     "folder",
     "frames",
+    "halves",
 )
 _SWEEP_KEYS = ("method", "param", "values", "params")
 _STATS_KEYS = ("baseline", "bootstrap", "confidence", "seed")
@@ -156,6 +157,9 @@ class ExperimentSpec:
     seed: int = 0
     pass_spp: int = 128
     render_folder: str = "data"
+    #: also render two independent half-sample buffers per level (``mcdenoise render
+    #: --halves``): what ``nfor`` and the reference-free error estimate need
+    halves: bool = False
     methods: str | tuple[str, ...] = "all"
     params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     sweeps: tuple[Sweep, ...] = ()
@@ -218,6 +222,7 @@ class ExperimentSpec:
                 "seed": self.seed,
                 "pass_spp": self.pass_spp,
                 "folder": self.render_folder,
+                **({"halves": True} if self.halves else {}),
             },
             "methods": self.methods if isinstance(self.methods, str) else list(self.methods),
             "params": {k: dict(v) for k, v in self.params.items()},
@@ -343,6 +348,9 @@ def parse_experiment(
     seed = _int(ctx, "render.seed", render.get("seed", 0), lo=0)
     pass_spp = _int(ctx, "render.pass_spp", render.get("pass_spp", 128), lo=1)
     render_folder = _str(ctx, "render.folder", render.get("folder", "data"))
+    halves = render.get("halves", False)
+    if not isinstance(halves, bool):
+        raise ctx.error("render.halves", f"must be true or false, got {halves!r}")
     frames = None
     if "frames" in render:
         frames = _int(ctx, "render.frames", render["frames"], lo=2)
@@ -486,6 +494,7 @@ def parse_experiment(
         seed=seed,
         pass_spp=pass_spp,
         render_folder=render_folder,
+        halves=halves,
         methods=methods,
         params=params,
         sweeps=tuple(sweeps),

@@ -171,10 +171,27 @@ def test_unwritable_output_even_for_root(tmp_path):
     assert "/proc/self/report" in msg and "Errno" not in msg
 
 
-def test_output_in_missing_folder(tmp_path):
+def test_output_in_a_missing_folder_creates_it_after_the_method_ran(tmp_path):
     src = make_noisy(tmp_path / "n.exr")
-    msg = one_line_error(run("denoise", str(src), "-o", str(tmp_path / "no" / "such" / "o.exr")))
-    assert "does not exist" in msg
+    out = tmp_path / "no" / "such" / "o.exr"
+    r = run("denoise", str(src), "-m", "nlm", "-o", str(out))
+    assert r.exit_code == 0, r.output
+    assert out.is_file()
+    # a run that fails (kpcn refuses a file without albedo) leaves no folder behind
+    bare = tmp_path / "bare.exr"
+    save_buffers(bare, FeatureBuffers({"color": torch.rand(3, 8, 8)}))
+    gone = tmp_path / "never" / "o.exr"
+    msg = one_line_error(run("denoise", str(bare), "-m", "kpcn", "-o", str(gone)))
+    assert "albedo" in msg
+    assert not gone.parent.exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux procfs")
+def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path):
+    """/proc/self takes no new folders, whoever runs the tests (CI may run as root)."""
+    src = make_noisy(tmp_path / "n.exr")
+    msg = one_line_error(run("denoise", str(src), "-m", "nlm", "-o", "/proc/self/new/o.exr"))
+    assert "/proc/self" in msg and "Traceback" not in msg
 
 
 def test_output_not_exr(tmp_path):
