@@ -764,6 +764,9 @@
       var pre = document.getElementById("viewer-selftest") || el("pre", { id: "viewer-selftest" });
       pre.textContent = JSON.stringify(out);
       document.body.appendChild(pre);
+      // the same on the console: Firefox has no --dump-dom; its browser test reads this line
+      // from stdout (devtools.console.stdout.content)
+      console.log("viewer-selftest " + JSON.stringify(out));
     }
     VIEWERS.forEach(function (x) {
       x.d.images.forEach(function (e) { out.images += (e.frames || []).length; });
