@@ -10,10 +10,10 @@ or repeat, and fill the report with "could not run" cells and warnings.
 :func:`plan_applicable` decides, before anything runs, for every (method, scene) pair:
 
 * a temporal method (:attr:`~mcdenoise.method.Method.temporal`) applies to sequences only;
-* a method applies to a level of a scene when its buffers (a sequence's first frame's) have
-  every buffer the method :attr:`~mcdenoise.method.Method.requires` and its
-  :attr:`~mcdenoise.method.Method.check_input` accepts them with the entry's parameters (the
-  same check a run makes, so a method never fails here for a reason this plan did not see).
+* a method applies to a level of a scene when it accepts its buffers (a sequence's first
+  frame's) with the entry's parameters (:meth:`~mcdenoise.method.Method.accepts`: the buffers
+  it requires, then its own input check; the check the default method and ``--method all``
+  make).
 
 A method that applies nowhere is left out of the experiment with one line saying why
 ("not run: ``ssao``: …"); one that applies to some scenes or levels (``nfor`` needs half
@@ -91,13 +91,8 @@ def why_not(entry: MethodEntry, scene: SceneData, buffers: Any) -> str | None:
     method = get_method(entry.method)
     if method.temporal and not scene.is_sequence:
         return TEMPORAL_ON_STILLS
-    missing = [b for b in method.requires if b not in buffers]
-    if missing:
-        return f"needs {', '.join(missing)}, which these files do not have"
-    if method.check_input is None:
-        return None
-    try:
-        why = method.check_input(buffers, entry.params())
+    try:  # the check of the default method and of `--method all`
+        why = method.accepts(buffers, entry.overrides)
     except McdenoiseError as err:  # a check that raises says why as well
         why = " ".join(str(err).split())
     if why is None:

@@ -3,15 +3,17 @@
 The trunk of ``kpcn`` (encoder and U-Net, :meth:`~mcdenoise.models.kpcn.KpcnModel.features`)
 is most of the network's time, and on a CPU with native bfloat16 arithmetic (AVX-512 BF16 or
 AMX, ``torch.ops.mkldnn._is_mkldnn_bf16_supported``) oneDNN runs its convolutions in bfloat16
-about 1.8× faster than in float32. Only the trunk runs under ``torch.autocast``: its features
-are cast back to float32 before the kernel heads, so the softmax, the kernel application, the
-compositor and the remodulation stay float32 (HDR sums overflow half precision, and a kernel
-weight needs more than bfloat16's 8 significant bits to keep energy).
+1.66× faster than in float32 (0.93 s against 0.56 s at 1 MP, 2 threads). Only the trunk runs
+under ``torch.autocast``: its features are cast back to float32 before the kernel heads, so
+the softmax, the kernel application, the compositor and the remodulation stay float32 (HDR
+sums overflow half precision, and a kernel weight needs more than bfloat16's 8 significant
+bits to keep energy).
 
 ``auto`` (the methods' default) is ``bf16`` where the device does bfloat16 natively (such a CPU,
 or a CUDA device that reports bf16 support) and ``fp32`` elsewhere: emulated bfloat16 is slower
-than float32. Measured on the held-out renders (``docs/results/speed.md``): relMSE moves by
-≤ 0.05 % in geometric mean and ≤ 0.2 % on the worst image, against a tolerance of 0.5 %.
+than float32. Measured on the held-out, hand-written textured and out-of-distribution renders
+(``benchmarks/bench_precision.py``, ``docs/results/speed.md``): relMSE moves by ≤ 0.25 % in
+geometric mean and 1.3 % on the worst image, against a tolerance of 0.5 % of the mean.
 """
 
 from __future__ import annotations

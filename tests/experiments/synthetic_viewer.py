@@ -71,6 +71,30 @@ def run_viewer_experiment(tmp: Path, *, outputs: str = "all") -> tuple[Path, Any
     return tmp / "out", summary.result
 
 
+SEQ_SPEC = """
+methods = ["box"]
+repetitions = 1
+warmup = 0
+[scenes]
+folder = "{folder}"
+[stats]
+bootstrap = 100
+[report]
+strip_spp = 2
+warmup_frames = 1
+"""
+
+
+def run_sequence_experiment(tmp: Path, fake: FakeMethods) -> Any:
+    """A 3-frame 16×16 sequence at 2 and 8 spp, ``box`` on it, into ``tmp/out``; the result."""
+    from synthetic_sequences import make_sequence_folder
+
+    folder = make_sequence_folder(tmp / "render", frames=3, size=(16, 16), spp=(2, 8))
+    fake.add("box")
+    spec = write_spec(tmp / "seq.toml", SEQ_SPEC.format(folder=folder.as_posix()))
+    return run_experiment(load_experiment(spec), tmp / "out").result
+
+
 def load_scene(path: Path) -> dict[str, Any]:
     """The JSON object a ``viewer/scene_NN.js`` registers."""
     text = path.read_text(encoding="ascii")

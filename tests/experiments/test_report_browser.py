@@ -2,7 +2,7 @@
 
 Two checks on a synthetic experiment's report:
 
-* a copy of the page with a small script added (the report itself has none) is loaded with
+* a copy of the page with a small script added is loaded with
   ``--dump-dom``; after the ``load`` event the script records, for every ``<img>``, whether it
   finished loading and decoded to a non-zero size, and the dumped DOM must say all did;
 * ``--screenshot`` of the page itself must be a real rendering: a PNG of the window size
@@ -12,17 +12,14 @@ Two checks on a synthetic experiment's report:
 from __future__ import annotations
 
 import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from headless import CHROMIUMS, find_chromium, run_chromium
 from synthetic_data import FakeMethods, blend, make_render_folder, write_spec
 
 from mcdenoise.experiments import load_experiment, run_experiment
-
-BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 
 CHECK = """
 <script>
@@ -39,24 +36,6 @@ window.addEventListener("load", function () {
 });
 </script>
 """
-
-
-def browser() -> str | None:
-    return next((p for p in map(shutil.which, BROWSERS) if p), None)
-
-
-def run_browser(exe: str, profile: Path, *args: str) -> subprocess.CompletedProcess:
-    cmd = [
-        exe,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--no-first-run",
-        "--hide-scrollbars",
-        f"--user-data-dir={profile}",
-        *args,
-    ]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=180, check=False)
 
 
 @pytest.fixture(scope="module")
@@ -78,15 +57,15 @@ def report_dir(tmp_path_factory) -> Path:
 
 @pytest.mark.slow
 def test_every_image_and_plot_loads_and_decodes_in_a_browser(report_dir: Path, tmp_path: Path):
-    exe = browser()
+    exe = find_chromium()
     if exe is None:
-        pytest.skip(f"no headless browser found ({', '.join(BROWSERS)})")
+        pytest.skip(f"no headless browser found ({', '.join(CHROMIUMS)})")
     page = (report_dir / "report.html").read_text(encoding="utf-8")
     expected = len(re.findall(r"<img\b", page))
     assert expected >= 20
     check = report_dir / "check.html"  # same folder: the relative image paths resolve
     check.write_text(page.replace("</body>", CHECK + "</body>"), encoding="utf-8")
-    done = run_browser(
+    done = run_chromium(
         exe, tmp_path / "profile", "--virtual-time-budget=10000", "--dump-dom", check.as_uri()
     )
     assert done.returncode == 0, done.stderr[-2000:]
@@ -100,11 +79,11 @@ def test_every_image_and_plot_loads_and_decodes_in_a_browser(report_dir: Path, t
 def test_screenshot_of_the_report_is_not_blank(report_dir: Path, tmp_path: Path):
     import OpenImageIO as oiio
 
-    exe = browser()
+    exe = find_chromium()
     if exe is None:
-        pytest.skip(f"no headless browser found ({', '.join(BROWSERS)})")
+        pytest.skip(f"no headless browser found ({', '.join(CHROMIUMS)})")
     shot = tmp_path / "shot.png"
-    done = run_browser(
+    done = run_chromium(
         exe,
         tmp_path / "profile",
         "--window-size=1200,2400",

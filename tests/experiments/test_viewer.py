@@ -16,18 +16,16 @@ import re
 
 import numpy as np
 import pytest
-from synthetic_data import write_spec
-from synthetic_sequences import make_sequence_folder
 from synthetic_viewer import (
     PLANT,
     SIZE,
     decode_f16,
     decode_u8,
     load_scene,
+    run_sequence_experiment,
     run_viewer_experiment,
 )
 
-from mcdenoise.experiments import load_experiment, run_experiment
 from mcdenoise.experiments import viewer as viewer_module
 from mcdenoise.experiments.dataset import read_level, read_reference
 from mcdenoise.experiments.viewer import crop_size, disagreement_crops, viewer_section
@@ -193,25 +191,8 @@ def test_values_beyond_float16_are_clipped_and_counted():
     assert got[4] == 0.5
 
 
-SEQ_SPEC = """
-methods = ["box"]
-repetitions = 1
-warmup = 0
-[scenes]
-folder = "{folder}"
-[stats]
-bootstrap = 100
-[report]
-strip_spp = 2
-warmup_frames = 1
-"""
-
-
 def test_a_sequence_stores_every_frame(tmp_path, fake_methods):
-    folder = make_sequence_folder(tmp_path / "render", frames=3, size=(16, 16), spp=(2, 8))
-    fake_methods.add("box")
-    spec = write_spec(tmp_path / "seq.toml", SEQ_SPEC.format(folder=folder.as_posix()))
-    result = run_experiment(load_experiment(spec), tmp_path / "out").result
+    result = run_sequence_experiment(tmp_path, fake_methods)
     page = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
     assert page.index("Over time at 2 spp") < page.index('id="viewer-0"')
     data = load_scene(tmp_path / "out" / "viewer" / "scene_00.js")

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import html
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -27,46 +26,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-from synthetic_data import write_spec
-from synthetic_sequences import make_sequence_folder
-from synthetic_viewer import SIZE, run_viewer_experiment
+from headless import chromium, run_chromium
+from synthetic_viewer import SIZE, run_sequence_experiment, run_viewer_experiment
 
-from mcdenoise.experiments import load_experiment, run_experiment
-
-CHROMIUMS = ("chromium", "chromium-browser", "google-chrome")
 FIREFOXES = ("firefox", "firefox-esr")
 WIDTH = 1400
 
 
-def chromium() -> str:
-    """The Chromium to run; skips (fails under CI) when there is none."""
-    exe = next((p for p in map(shutil.which, CHROMIUMS) if p), None)
-    if exe is None:
-        if os.environ.get("CI", "").lower() in ("true", "1", "yes"):
-            pytest.fail("CI is set but no Chromium is installed: run `make system-deps` as root")
-        pytest.skip(f"no headless Chromium ({', '.join(CHROMIUMS)}): apt-get install chromium")
-    return exe
-
-
-def run_chromium(exe: str, profile: Path, *args: str) -> subprocess.CompletedProcess:
-    cmd = [
-        exe,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--hide-scrollbars",
-        f"--user-data-dir={profile}",
-        "--enable-logging=stderr",
-        "--v=0",
-        "--virtual-time-budget=10000",
-        *args,
-    ]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=180, check=False)
+#: What every self-test run adds: the page's console on stderr, and time for the data to decode.
+LOGGED = ("--enable-logging=stderr", "--v=0", "--virtual-time-budget=10000")
 
 
 def selftest(exe: str, page: Path, profile: Path) -> tuple[dict[str, Any], str, str]:
@@ -74,6 +42,7 @@ def selftest(exe: str, page: Path, profile: Path) -> tuple[dict[str, Any], str, 
     done = run_chromium(
         exe,
         profile,
+        *LOGGED,
         f"--window-size={WIDTH},1000",
         "--dump-dom",
         page.as_uri() + "#viewer-selftest",
@@ -105,7 +74,7 @@ def screenshot(exe: str, url: str, height: int, profile: Path) -> np.ndarray:
 
     shot = profile.parent / f"{profile.name}.png"
     done = run_chromium(
-        exe, profile, f"--window-size={WIDTH},{height}", f"--screenshot={shot}", url
+        exe, profile, *LOGGED, f"--window-size={WIDTH},{height}", f"--screenshot={shot}", url
     )
     assert done.returncode == 0 and shot.is_file(), done.stderr[-2000:]
     return oiio.ImageBuf(str(shot)).get_pixels(oiio.UINT8)[..., :3]
@@ -201,26 +170,9 @@ def test_zoomed_in_single_pixels_are_flat_blocks(report, tested, tmp_path):
     assert 4 <= colours(pane) <= 1.2 * in_view
 
 
-SEQ_SPEC = """
-methods = ["box"]
-repetitions = 1
-warmup = 0
-[scenes]
-folder = "{folder}"
-[stats]
-bootstrap = 100
-[report]
-strip_spp = 2
-warmup_frames = 1
-"""
-
-
 def test_a_sequence_has_a_frame_slider_and_no_error(tmp_path, fake_methods):
     exe = chromium()
-    folder = make_sequence_folder(tmp_path / "render", frames=3, size=(16, 16), spp=(2, 8))
-    fake_methods.add("box")
-    spec = write_spec(tmp_path / "seq.toml", SEQ_SPEC.format(folder=folder.as_posix()))
-    run_experiment(load_experiment(spec), tmp_path / "out")
+    run_sequence_experiment(tmp_path, fake_methods)
     result, log, dom = selftest(exe, tmp_path / "out" / "report.html", tmp_path / "profile")
     assert result["errors"] == [] and page_errors(log) == []
     assert result["images"] == result["decoded"] == 3 * (2 * 2 + 1)  # noisy, box; reference

@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 import torch
 
-import mcdenoise.models.multiscale as multiscale
 from mcdenoise.errors import InputError
 from mcdenoise.filters.albedo import ALBEDO_EPS
 from mcdenoise.io import load_buffers
@@ -352,15 +351,8 @@ def test_truncated_or_foreign_files_give_checkpoint_errors(model, tmp_path) -> N
 # --- mixed precision (docs/hard-cases.md item 22) ------------------------------------------------------------
 
 
-def test_bf16_autocast_keeps_kernels_and_output_float32(cornell, model, monkeypatch) -> None:
-    seen: list[tuple[torch.dtype, torch.dtype]] = []
-    real = multiscale.apply_kernels
-
-    def spy(image, weights, **kw):
-        seen.append((image.dtype, weights.dtype))
-        return real(image, weights, **kw)
-
-    monkeypatch.setattr(multiscale, "apply_kernels", spy)
+def test_bf16_autocast_keeps_kernels_and_output_float32(cornell, model, kernel_dtypes) -> None:
+    seen = kernel_dtypes
     conv_dtypes: list[torch.dtype] = []
     hook = model.up[0].register_forward_hook(lambda m, i, o: conv_dtypes.append(o.dtype))
     batch = _batch(cornell, [0, 1, 2])

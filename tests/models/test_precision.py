@@ -67,17 +67,8 @@ def test_bf16_trunk_moves_the_shipped_models_error_by_under_half_a_percent(shipp
         assert relmse(bf16, fp32) < 0.02 * e32
 
 
-def test_the_kernels_and_compositor_stay_float32_under_bf16(shipped, monkeypatch) -> None:
-    import mcdenoise.models.multiscale as multiscale
-
-    seen: list[tuple[torch.dtype, torch.dtype]] = []
-    real = multiscale.apply_kernels
-
-    def spy(image, weights, **kw):
-        seen.append((image.dtype, weights.dtype))
-        return real(image, weights, **kw)
-
-    monkeypatch.setattr(multiscale, "apply_kernels", spy)
+def test_the_kernels_and_compositor_stay_float32_under_bf16(shipped, kernel_dtypes) -> None:
+    seen = kernel_dtypes
     conv: list[torch.dtype] = []
     hook = shipped.up[0].register_forward_hook(lambda m, i, o: conv.append(o.dtype))
     try:
